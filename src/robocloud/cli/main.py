@@ -1,0 +1,285 @@
+"""The ``robocloud`` command.
+
+::
+
+    robocloud select SCENARIO.json [--optimizer auto|exact|mopso] [--seed N] [--pool-size K]
+    robocloud scenario wildfire [--robots 1000] [--clouds 3] [--seed N] [--output FILE]
+
+``select`` reads MODEL.md's input (a file, or ``-`` for stdin) and prints
+MODEL.md's output as one JSON document on stdout. ``scenario wildfire``
+writes the thesis's illustrative scenario (section 5.4) in that input shape.
+
+Exit codes, mapped from the error family in :func:`exit_code` only:
+
+- 0: done, also when no coalition is feasible (the output says why);
+- 2: the user's input is wrong (:class:`~robocloud.errors.InvalidInput`,
+  :class:`~robocloud.errors.NotFound`), and argparse's own usage errors;
+- 1: any other :class:`~robocloud.errors.RoboCloudError`.
+
+A user's mistake is reported as one sentence on stderr, never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any, NoReturn
+
+from pydantic import TypeAdapter, ValidationError
+
+from robocloud.cli.iaas_command import add_iaas_arguments, iaas_command
+from robocloud.domain import Robot, Task
+from robocloud.errors import (
+    InvalidInput,
+    NotFound,
+    RoboCloudError,
+    describe_validation_errors,
+)
+
+EXIT_OK = 0
+EXIT_FAILED = 1
+EXIT_INVALID = 2
+EXIT_INTERRUPTED = 130
+
+STDIN = "-"
+INPUT_FIELDS = ("robots", "task")
+
+Command = Callable[[argparse.Namespace], int]
+
+
+def exit_code(error: RoboCloudError) -> int:
+    """The one place where an error becomes an exit code."""
+    if isinstance(error, InvalidInput | NotFound):
+        return EXIT_INVALID
+    return EXIT_FAILED
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    command: Command = args.command
+    try:
+        return command(args)
+    except RoboCloudError as error:
+        # One line, whatever the message holds.
+        print(f"robocloud: {' '.join(error.message.split())}", file=sys.stderr)
+        return exit_code(error)
+    except KeyboardInterrupt:
+        return EXIT_INTERRUPTED
+    except BrokenPipeError:
+        # The reader went away (``| head``); keep Python from complaining at exit.
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return EXIT_FAILED
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="robocloud",
+        description="Robot fleets of several providers federated into one robotic IaaS.",
+    )
+    commands = parser.add_subparsers(title="commands", metavar="COMMAND", required=True)
+
+    select = commands.add_parser(
+        "select",
+        help="choose a coalition for a task (MODEL.md's select)",
+        description="Read {robots, task} as JSON and print the selection as JSON.",
+    )
+    select.add_argument("scenario", metavar="SCENARIO.json", help="input file, or - for stdin")
+    select.add_argument(
+        "--optimizer",
+        choices=("auto", "exact", "mopso"),
+        default="auto",
+        help="auto (default) takes the exact optimizer when the problem is small enough",
+    )
+    select.add_argument("--seed", type=int, default=0, help="seed of MOPSO (default 0)")
+    select.add_argument(
+        "--pool-size",
+        type=int,
+        default=None,
+        metavar="K",
+        help="how many of the best ranked candidates the optimizer searches",
+    )
+    select.set_defaults(command=select_command)
+
+    scenario = commands.add_parser(
+        "scenario",
+        help="write a scenario as select's input",
+        description="Write a generated scenario in select's input shape.",
+    )
+    scenario.add_argument("name", choices=("wildfire",), help="the thesis's section 5.4")
+    scenario.add_argument("--robots", type=int, default=1000, help="fleet size (default 1000)")
+    scenario.add_argument("--clouds", type=int, default=3, help="providers, 1 to 26 (default 3)")
+    scenario.add_argument("--seed", type=int, default=0, help="default 0")
+    scenario.add_argument("--output", metavar="FILE", help="write here instead of stdout")
+    scenario.set_defaults(command=scenario_command)
+
+    iaas = commands.add_parser(
+        "iaas",
+        help="run one cloud's IaaS: HTTP API, Zenoh router, store",
+        description="Run one robot cloud's IaaS until interrupted.",
+    )
+    add_iaas_arguments(iaas)
+    iaas.set_defaults(command=iaas_command)
+
+    sim = commands.add_parser(
+        "sim",
+        help="simulate one cloud's robots, connected to its IaaS over Zenoh",
+        description="Simulate N robots of one cloud until interrupted.",
+    )
+    from robocloud.sim.command import add_sim_arguments
+
+    add_sim_arguments(sim)
+    sim.set_defaults(command=_sim_command)
+
+    wildfire = commands.add_parser(
+        "wildfire",
+        help="serve the Wildfire Suppression Application for an IaaS",
+        description="Serve the page and call the IaaS with the application's key.",
+    )
+    from robocloud.wildfire.command import add_wildfire_arguments, wildfire_command
+
+    add_wildfire_arguments(wildfire)
+    wildfire.set_defaults(command=wildfire_command)
+    return parser
+
+
+def _sim_command(args: argparse.Namespace) -> int:
+    from robocloud.sim.command import sim_command
+
+    return sim_command(args)
+
+
+# --- select ---------------------------------------------------------------
+
+
+def select_command(args: argparse.Namespace) -> int:
+    # Imported here: the selection stack is only needed by this command.
+    from robocloud.selection.pipeline import select
+
+    _check_at_least("--seed", args.seed, 0)
+    if args.pool_size is not None:
+        _check_at_least("--pool-size", args.pool_size, 1)
+    robots, task = parse_select_input(read_text(args.scenario), _source_name(args.scenario))
+    result = select(
+        robots, task, optimizer=args.optimizer, seed=args.seed, pool_size=args.pool_size
+    )
+    print(json.dumps(result.to_json()))
+    return EXIT_OK
+
+
+def read_text(source: str) -> str:
+    """The file's text, or stdin's for ``-``."""
+    if source == STDIN:
+        try:
+            return sys.stdin.read()
+        except UnicodeDecodeError as error:
+            raise InvalidInput(f"stdin is not UTF-8 text ({error.reason}).") from None
+    path = Path(source)
+    try:
+        return path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise NotFound(f"{source}: no such file.", key=source) from None
+    except UnicodeDecodeError as error:
+        raise InvalidInput(f"{source} is not UTF-8 text ({error.reason}).") from None
+    except OSError as error:
+        raise InvalidInput(f"cannot read {source}: {error.strerror or error}.") from None
+
+
+def parse_select_input(text: str, source: str = "the input") -> tuple[list[Robot], Task]:
+    """MODEL.md's ``{"robots": [...], "task": {...}}``, validated, ids unique."""
+    try:
+        data = json.loads(text, parse_constant=_reject_constant)
+    except json.JSONDecodeError as error:
+        raise InvalidInput(
+            f"{source} is not valid JSON: {error.msg} at line {error.lineno} column {error.colno}."
+        ) from None
+    if not isinstance(data, dict):
+        raise InvalidInput(
+            f"{source} must be a JSON object with robots and task, not {_json_type(data)}."
+        )
+    for name in INPUT_FIELDS:
+        if name not in data:
+            raise InvalidInput(f"{name} is missing.", field=name)
+    unknown = sorted(set(data) - set(INPUT_FIELDS))
+    if unknown:
+        raise InvalidInput(f"{unknown[0]} is not a known field.", field=unknown[0])
+    try:
+        robots = TypeAdapter(list[Robot]).validate_python(data["robots"])
+    except ValidationError as error:
+        raise describe_validation_errors(error.errors(), "robots") from None
+    try:
+        task = Task.model_validate(data["task"])
+    except ValidationError as error:
+        raise describe_validation_errors(error.errors(), "task") from None
+    check_unique_ids(robots)
+    return robots, task
+
+
+def check_unique_ids(robots: Sequence[Robot]) -> None:
+    first: dict[str, int] = {}
+    for index, robot in enumerate(robots):
+        if robot.id in first:
+            raise InvalidInput(
+                f"robots[{index}].id: {robot.id!r} is already the id of robots[{first[robot.id]}].",
+                field=f"robots[{index}].id",
+            )
+        first[robot.id] = index
+
+
+def _reject_constant(name: str) -> NoReturn:
+    # Python's json takes NaN and Infinity; JSON does not.
+    raise InvalidInput(f"the input is not valid JSON: {name} is not a JSON number.")
+
+
+def _json_type(value: Any) -> str:
+    if isinstance(value, list):
+        return "an array"
+    if isinstance(value, str):
+        return "a string"
+    if isinstance(value, bool):
+        return "a boolean"
+    if value is None:
+        return "null"
+    return "a number"
+
+
+def _source_name(source: str) -> str:
+    return "stdin" if source == STDIN else source
+
+
+# --- scenario -------------------------------------------------------------
+
+
+def scenario_command(args: argparse.Namespace) -> int:
+    from robocloud.sim.scenario import MAX_CLOUDS, wildfire_scenario
+
+    _check_at_least("--robots", args.robots, 1)
+    if not 1 <= args.clouds <= MAX_CLOUDS:
+        raise InvalidInput(
+            f"--clouds must be between 1 and {MAX_CLOUDS}, not {args.clouds}.", field="--clouds"
+        )
+    _check_at_least("--seed", args.seed, 0)
+    text = json.dumps(wildfire_scenario(args.robots, args.clouds, args.seed)) + "\n"
+    if args.output is None:
+        sys.stdout.write(text)
+        return EXIT_OK
+    try:
+        Path(args.output).write_text(text, encoding="utf-8")
+    except OSError as error:
+        raise InvalidInput(
+            f"cannot write {args.output}: {error.strerror or error}.", field="--output"
+        ) from None
+    return EXIT_OK
+
+
+def _check_at_least(option: str, value: int, least: int) -> None:
+    if value < least:
+        raise InvalidInput(f"{option} must be at least {least}, not {value}.", field=option)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

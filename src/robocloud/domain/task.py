@@ -1,0 +1,45 @@
+"""A task request as MODEL.md fixes it, and the thesis's Criteria_Importance."""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from robocloud.domain.robot import Name, NonNegative, Position
+
+Count = Annotated[int, Field(ge=1, le=10_000)]
+Priority = Literal["balanced", "time", "cost"]
+Execution = Literal["parallel", "sequential"]
+
+# The thesis's Criteria_Importance codes (Algorithm 3, steps 3 to 9).
+CRITERIA_IMPORTANCE: dict[str, int] = {"balanced": 0, "time": 1, "cost": 2}
+
+
+class Task(BaseModel):
+    model_config = ConfigDict(strict=True, extra="forbid", frozen=True)
+
+    location: Position = Field(description="[x, y] in metres")
+    sensing: dict[Name, Count] = Field(default_factory=dict)
+    actuating: dict[Name, Count] = Field(default_factory=dict)
+    max_robots: Annotated[int, Field(ge=1, le=100_000)]
+    max_cost: NonNegative
+    max_time: NonNegative
+    min_battery: Annotated[float, Field(ge=0.0, le=100.0, allow_inf_nan=False)] = 0.0
+    priority: Priority = "balanced"
+    execution: Execution = "parallel"
+
+    @model_validator(mode="after")
+    def _requires_something(self) -> Task:
+        if not self.sensing and not self.actuating:
+            raise ValueError("a task must require at least one sensing or actuating capability")
+        both = sorted(set(self.sensing) & set(self.actuating))
+        if both:
+            raise ValueError(f"capability {both[0]!r} is listed as both sensing and actuating")
+        return self
+
+    @property
+    def required(self) -> dict[str, int]:
+        """Capability name -> how many distinct robots must bring it, names sorted."""
+        merged = {**self.sensing, **self.actuating}
+        return {name: merged[name] for name in sorted(merged)}

@@ -1,0 +1,230 @@
+"""The federation view: every robot a request may use, and how to reach it.
+
+The thesis's Virtualization Engine asks the Task Delegator Engine for the idle
+robots of all IaaSs. Here that is this cloud's robots (from its robot link,
+minus those its store holds) plus a scatter-gather query that every other
+live cloud answers within a timeout. Reservations, commands and cancels go to
+each robot's home: this cloud's store and link for its own robots, the
+overlay for the others.
+
+Without an overlay (``overlay=None``) the view is this cloud alone.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import defaultdict
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+
+from robocloud.domain import Robot, Task
+from robocloud.errors import RoboCloudError
+from robocloud.federation.messages import Dispatch, IdleQuery, Release, Reservation
+from robocloud.federation.overlay import ZenohOverlay
+from robocloud.fleet.link import RobotLink, StateListener
+from robocloud.fleet.messages import Ack, Assign
+from robocloud.storage import RequestStore
+
+logger = logging.getLogger(__name__)
+
+# A remote reservation is a lease until the request is dispatched: if this
+# cloud dies in between, the home cloud gets its robots back by itself.
+LEASE_SECONDS = 15.0
+
+
+@dataclass
+class View:
+    """The robots one selection sees, and what the gathering noticed."""
+
+    robots: list[Robot]
+    notes: list[str] = field(default_factory=list)
+    gather_ms: float = 0.0
+
+
+class FederationView:
+    def __init__(
+        self,
+        cloud: str,
+        store: RequestStore,
+        link: RobotLink,
+        overlay: ZenohOverlay | None = None,
+        gather_timeout: float = 0.5,
+    ) -> None:
+        self.cloud = cloud
+        self.store = store
+        self.link = link
+        self.overlay = overlay
+        self.gather_timeout = gather_timeout
+
+    # -- what a selection sees ------------------------------------------------
+
+    def local_robots(self, held: Iterable[str] = ()) -> list[Robot]:
+        """This cloud's robots; those reserved in the store (or ``held``) as ``reserved``."""
+        reserved = set(self.store.reservations()) | set(held)
+        return [
+            robot.model_copy(update={"status": "reserved"})
+            if robot.id in reserved and robot.status == "idle"
+            else robot
+            for robot in self.link.robots()
+        ]
+
+    def remote_robots(self, task: Task, exclude: set[str]) -> View:
+        """The idle robots of the other live clouds that answer within the timeout."""
+        view = View([])
+        if self.overlay is None:
+            return view
+        gathered = self.overlay.gather_idle(
+            IdleQuery(
+                origin=self.cloud,
+                min_battery=task.min_battery,
+                capabilities=list(task.required),
+            ),
+            self.gather_timeout,
+        )
+        view.gather_ms = gathered.elapsed_ms
+        for reply in gathered.replies.values():
+            view.robots += [
+                r for r in reply.robots if r.id not in exclude and r.cloud != self.cloud
+            ]
+        if gathered.missing:
+            view.notes.append(
+                f"{', '.join(gathered.missing)} did not answer within "
+                f"{self.gather_timeout * 1000:.0f} ms; "
+                f"{'its' if len(gathered.missing) == 1 else 'their'} robots were left out"
+            )
+        return view
+
+    # -- reservations at each robot's home --------------------------------------
+
+    def reserve(self, request_id: str, robots: Sequence[tuple[str, str]]) -> list[str]:
+        """Reserve (robot, cloud) pairs, all or nothing: [] or the robots taken meanwhile."""
+        by_cloud = _by_cloud(robots)
+        done: list[str] = []
+        taken: list[str] = []
+        for cloud, ids in by_cloud.items():
+            if cloud == self.cloud:
+                taken = self.store.reserve(request_id, ids)
+            else:
+                assert self.overlay is not None, "a remote robot without an overlay"
+                try:
+                    reply = self.overlay.reserve(
+                        cloud,
+                        Reservation(
+                            origin=self.cloud,
+                            request_id=request_id,
+                            robots=ids,
+                            lease_seconds=LEASE_SECONDS,
+                        ),
+                    )
+                    taken = reply.taken if reply.error is None else ids
+                except RoboCloudError:
+                    taken = ids
+            if taken:
+                break
+            done.append(cloud)
+        if taken:
+            for cloud in done:
+                self._release(cloud, request_id, by_cloud[cloud], "reservation rolled back")
+        return taken
+
+    def confirm(self, request_id: str, robots: Sequence[tuple[str, str]]) -> list[str]:
+        """Turn the remote leases firm once dispatched; the robots that could not be."""
+        lost: list[str] = []
+        for cloud, ids in _by_cloud(robots).items():
+            if cloud == self.cloud or self.overlay is None:
+                continue
+            try:
+                reply = self.overlay.confirm(
+                    cloud, Reservation(origin=self.cloud, request_id=request_id, robots=ids)
+                )
+                lost += reply.taken
+            except RoboCloudError:
+                lost += ids
+        return lost
+
+    def release(
+        self, request_id: str, robots: Sequence[tuple[str, str]] | None, why: str = ""
+    ) -> None:
+        """Give robots back to their homes (None: this cloud's hold on every robot)."""
+        if robots is None:
+            self.store.release(request_id, None)
+            return
+        for cloud, ids in _by_cloud(robots).items():
+            self._release(cloud, request_id, ids, why)
+
+    def _release(self, cloud: str, request_id: str, ids: list[str], why: str) -> None:
+        if cloud == self.cloud:
+            self.store.release(request_id, ids)
+            return
+        if self.overlay is None:
+            return
+        try:
+            self.overlay.release(
+                cloud,
+                Release(origin=self.cloud, request_id=request_id, robots=ids, why=why or None),
+            )
+        except RoboCloudError as error:
+            # The home reconciles with us when it is back.
+            logger.warning("could not release %s at %s: %s", ids, cloud, error)
+
+    # -- commands ---------------------------------------------------------------
+
+    def assign(self, robot: str, cloud: str, command: Assign) -> Ack:
+        if cloud == self.cloud:
+            return self.link.assign(robot, command)
+        if self.overlay is None:
+            return Ack.refuse(robot, command.request_id, f"{cloud} is not reachable.")
+        ack = self.overlay.dispatch(
+            cloud, Dispatch(origin=self.cloud, robot=robot, command=command)
+        )
+        if ack.ok:
+            self.overlay.watch(cloud, robot)
+        return ack
+
+    def cancel(self, robot: str, cloud: str, request_id: str) -> None:
+        if cloud == self.cloud:
+            self.link.cancel(robot, request_id)
+            return
+        if self.overlay is None:
+            return
+        try:
+            self.overlay.cancel(
+                cloud,
+                Release(origin=self.cloud, request_id=request_id, robots=[robot], why="canceled"),
+            )
+        except RoboCloudError as error:
+            logger.warning("could not cancel %s at %s: %s", robot, cloud, error)
+        self.overlay.unwatch(cloud, robot)
+
+    def watch(self, robot: str, cloud: str) -> None:
+        if cloud != self.cloud and self.overlay is not None:
+            self.overlay.watch(cloud, robot)
+
+    def unwatch(self, robot: str, cloud: str) -> None:
+        if cloud != self.cloud and self.overlay is not None:
+            self.overlay.unwatch(cloud, robot)
+
+    # -- robots' reports ----------------------------------------------------------
+
+    def ages(self) -> dict[str, float]:
+        ages = dict(self.overlay.ages()) if self.overlay is not None else {}
+        ages.update(self.link.ages())
+        return ages
+
+    def on_state(self, listener: StateListener) -> Callable[[], None]:
+        stops = [self.link.on_state(listener)]
+        if self.overlay is not None:
+            stops.append(self.overlay.on_state(listener))
+
+        def stop() -> None:
+            for s in stops:
+                s()
+
+        return stop
+
+
+def _by_cloud(robots: Sequence[tuple[str, str]]) -> dict[str, list[str]]:
+    grouped: dict[str, list[str]] = defaultdict(list)
+    for robot, cloud in robots:
+        grouped[cloud].append(robot)
+    return dict(grouped)

@@ -1,0 +1,247 @@
+"""The robot link: the I/O seam between an IaaS and the robots of its cloud.
+
+``RobotLink`` is what the IaaS uses; ``ZenohRobotLink`` speaks the messages
+of ``robocloud.fleet.messages`` over a Zenoh session, and
+``robocloud.fleet.memory.MemoryRobotLink`` is the in-memory one for tests.
+
+Zenoh calls back on its own threads: ``on_state`` listeners run there, and
+``assign`` and ``cancel`` block until the robot answers or the timeout
+passes, so an asyncio caller uses ``asyncio.to_thread`` for them and hands
+states to its loop with ``loop.call_soon_threadsafe``.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+from typing import Protocol
+
+import pydantic
+import zenoh
+
+from robocloud.domain import Robot
+from robocloud.fleet import keys
+from robocloud.fleet.messages import Ack, Assign, Cancel, State
+
+logger = logging.getLogger(__name__)
+
+StateListener = Callable[[State], None]
+NO_ANSWER = "robot {robot} did not answer."
+
+
+class RobotLink(Protocol):
+    """The live robots of one cloud, and the commands they take."""
+
+    @property
+    def cloud(self) -> str: ...
+
+    def robots(self) -> list[Robot]:
+        """Every robot heard from, as MODEL.md robots; ``offline`` when silent too long."""
+        ...
+
+    def states(self) -> dict[str, State]:
+        """The latest state of each robot heard from, by id."""
+        ...
+
+    def ages(self) -> dict[str, float]:
+        """Seconds since each robot's latest state, by id."""
+        ...
+
+    def assign(self, robot_id: str, command: Assign) -> Ack:
+        """Send a task to a robot; its acknowledgement, or not ok when it does not answer."""
+        ...
+
+    def cancel(self, robot_id: str, request_id: str) -> Ack:
+        """Stop a robot working on ``request_id``."""
+        ...
+
+    def on_state(self, listener: StateListener) -> Callable[[], None]:
+        """Call ``listener`` with every new state; returns a function that stops it."""
+        ...
+
+    def close(self) -> None: ...
+
+
+class LatestStates:
+    """The latest states, their receive times and the listeners, behind one lock.
+
+    Shared by the Zenoh and the in-memory links so both judge staleness,
+    ordering and silence the same way.
+    """
+
+    def __init__(self, cloud: str, offline_after: float, clock: Callable[[], float]) -> None:
+        self.cloud = cloud
+        self.offline_after = offline_after
+        self.clock = clock
+        self._lock = threading.Lock()
+        self._states: dict[str, State] = {}
+        self._received: dict[str, float] = {}
+        self._listeners: list[StateListener] = []
+        # The Robot of each held state, made once per state: a selection asks
+        # for every robot of the cloud, and building 1,000 of them each time
+        # cost more than the selection itself.
+        self._robots: dict[str, tuple[State, Robot]] = {}
+
+    def accept(self, state: State) -> bool:
+        """Keep ``state`` if it is newer than the one held; tell the listeners."""
+        with self._lock:
+            held = self._states.get(state.id)
+            # A smaller seq sent later is a restarted robot; otherwise an old
+            # or repeated message.
+            if held is not None and state.seq <= held.seq and state.sent_at <= held.sent_at:
+                return False
+            self._states[state.id] = state
+            self._received[state.id] = self.clock()
+            listeners = list(self._listeners)
+        for listener in listeners:
+            try:
+                listener(state)
+            except Exception:
+                logger.exception("a robot state listener failed")
+        return True
+
+    def states(self) -> dict[str, State]:
+        with self._lock:
+            return dict(self._states)
+
+    def ages(self) -> dict[str, float]:
+        now = self.clock()
+        with self._lock:
+            return {rid: now - at for rid, at in self._received.items()}
+
+    def robots(self) -> list[Robot]:
+        now = self.clock()
+        with self._lock:
+            pairs = [(s, now - self._received[rid]) for rid, s in self._states.items()]
+        robots = []
+        for state, age in sorted(pairs, key=lambda pair: pair[0].id):
+            cached = self._robots.get(state.id)
+            if cached is None or cached[0] is not state:
+                cached = self._robots[state.id] = (state, state.to_robot())
+            robot = cached[1]
+            if age > self.offline_after and robot.status != "offline":
+                robot = robot.model_copy(update={"status": "offline"})
+            robots.append(robot)
+        return robots
+
+    def add_listener(self, listener: StateListener) -> Callable[[], None]:
+        with self._lock:
+            self._listeners.append(listener)
+
+        def remove() -> None:
+            with self._lock:
+                if listener in self._listeners:
+                    self._listeners.remove(listener)
+
+        return remove
+
+
+class ZenohRobotLink:
+    """The robots of ``cloud`` over a Zenoh session (the IaaS's router session).
+
+    A robot silent for more than ``offline_after`` seconds is reported
+    ``offline`` by ``robots()``; a command unanswered within
+    ``command_timeout`` seconds is acknowledged not ok.
+    """
+
+    def __init__(
+        self,
+        session: zenoh.Session,
+        cloud: str,
+        offline_after: float = 5.0,
+        command_timeout: float = 2.0,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self._session = session
+        self._cloud = keys.check_chunk(cloud, "cloud")
+        self._timeout = command_timeout
+        self._latest = LatestStates(cloud, offline_after, clock)
+        self._warned: set[str] = set()
+        self._subscriber = session.declare_subscriber(keys.all_states(cloud), self._on_sample)
+
+    @property
+    def cloud(self) -> str:
+        return self._cloud
+
+    def robots(self) -> list[Robot]:
+        return self._latest.robots()
+
+    def states(self) -> dict[str, State]:
+        return self._latest.states()
+
+    def ages(self) -> dict[str, float]:
+        return self._latest.ages()
+
+    def on_state(self, listener: StateListener) -> Callable[[], None]:
+        return self._latest.add_listener(listener)
+
+    def assign(self, robot_id: str, command: Assign) -> Ack:
+        return self._command(robot_id, command)
+
+    def cancel(self, robot_id: str, request_id: str) -> Ack:
+        return self._command(robot_id, Cancel(request_id=request_id))
+
+    def close(self) -> None:
+        self._subscriber.undeclare()  # type: ignore[no-untyped-call]
+
+    def __enter__(self) -> ZenohRobotLink:
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self.close()
+
+    def _command(self, robot_id: str, command: Assign | Cancel) -> Ack:
+        replies = self._session.get(
+            keys.cmd_key(self._cloud, robot_id),
+            payload=command.model_dump_json(),
+            encoding=zenoh.Encoding.APPLICATION_JSON,
+            # One robot per key, but should two answer (a robot and a stale
+            # simulator of the same cloud) every reply arrives and the first
+            # one wins instead of Zenoh merging them.
+            target=zenoh.QueryTarget.ALL,
+            consolidation=zenoh.ConsolidationMode.NONE,
+            timeout=self._timeout,
+        )
+        for reply in replies:
+            return self._ack(robot_id, command.request_id, reply)
+        return Ack.refuse(robot_id, command.request_id, NO_ANSWER.format(robot=robot_id))
+
+    @staticmethod
+    def _ack(robot_id: str, request_id: str, reply: zenoh.Reply) -> Ack:
+        sample = reply.ok
+        if sample is None:
+            error = reply.err
+            detail = error.payload.to_string() if error is not None else "no detail"
+            if detail == "Timeout":
+                # What Zenoh itself replies when the timeout passes with the
+                # query still open at the robot.
+                return Ack.refuse(robot_id, request_id, NO_ANSWER.format(robot=robot_id))
+            return Ack.refuse(robot_id, request_id, f"robot {robot_id} answered an error: {detail}")
+        try:
+            return Ack.model_validate_json(sample.payload.to_bytes())
+        except pydantic.ValidationError:
+            return Ack.refuse(
+                robot_id, request_id, f"robot {robot_id} answered something that is not an Ack."
+            )
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        if sample.kind != zenoh.SampleKind.PUT:
+            return
+        key = str(sample.key_expr)
+        try:
+            state = State.model_validate_json(sample.payload.to_bytes())
+        except pydantic.ValidationError as error:
+            self._warn_once(key, f"an invalid state on {key}: {error.errors()[0]['msg']}")
+            return
+        if state.cloud != self._cloud or state.id != keys.robot_of(key):
+            self._warn_once(key, f"a state for {state.cloud}/{state.id} on {key}")
+            return
+        self._latest.accept(state)
+
+    def _warn_once(self, key: str, message: str) -> None:
+        # A misconfigured robot repeats itself every second; say it once.
+        if key not in self._warned:
+            self._warned.add(key)
+            logger.warning("ignoring %s", message)

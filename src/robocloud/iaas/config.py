@@ -1,0 +1,84 @@
+"""The IaaS's settings: one class, read from flags and the environment, built in the CLI.
+
+Nothing here is read when a module is imported: ``Settings.from_env`` is called
+by ``robocloud iaas`` and by tests, which may also build ``Settings`` directly.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from robocloud.errors import InvalidInput
+
+API_KEYS_ENV = "ROBOCLOUD_API_KEYS"
+
+
+def parse_api_keys(text: str) -> dict[str, str]:
+    """``"wildfire=s3cret,demo=k2"`` -> key -> application.
+
+    Several applications may not share a key: the key is what tells them apart.
+    """
+    keys: dict[str, str] = {}
+    for item in filter(None, (part.strip() for part in text.split(","))):
+        application, sep, key = item.partition("=")
+        application, key = application.strip(), key.strip()
+        if not sep or not application or not key:
+            raise InvalidInput(
+                f"{API_KEYS_ENV} must be comma-separated application=key pairs; "
+                f"{item!r} is not one.",
+                API_KEYS_ENV,
+            )
+        if key in keys and keys[key] != application:
+            raise InvalidInput(
+                f"applications {keys[key]!r} and {application!r} share a key.", API_KEYS_ENV
+            )
+        keys[key] = application
+    return keys
+
+
+@dataclass(frozen=True)
+class Settings:
+    cloud: str
+    host: str = "127.0.0.1"
+    port: int = 8101
+    zenoh_listen: tuple[str, ...] = ("tcp/127.0.0.1:7447",)
+    zenoh_peers: tuple[str, ...] = ()
+    store_url: str = ""
+    api_keys: Mapping[str, str] = field(default_factory=dict)  # key -> application
+    offline_after: float = 5.0  # seconds of silence before a robot is offline
+    max_body_bytes: int = 64 * 1024
+    optimizer: str = "auto"
+    seed: int = 0
+    reselect_attempts: int = 8  # selections per request when reservations conflict
+    ack_timeout: float = 2.0  # seconds a robot has to acknowledge a command
+    # Simulated robots may run faster than the wall clock (``robocloud sim
+    # --speedup``); the time left for a replacement is counted in robot time.
+    time_scale: float = 1.0
+    # Federation: the clouds whose commands for this cloud's robots are
+    # accepted (empty: every cloud on the overlay), and how long a request
+    # waits for the other clouds' idle robots.
+    trusted: tuple[str, ...] = ()
+    gather_timeout: float = 0.5
+    federation: bool = True
+
+    def __post_init__(self) -> None:
+        if not self.store_url:
+            object.__setattr__(self, "store_url", default_store_url(self.cloud))
+
+    @classmethod
+    def from_env(
+        cls, cloud: str, environ: Mapping[str, str] | None = None, **overrides: object
+    ) -> Settings:
+        env = os.environ if environ is None else environ
+        keys = parse_api_keys(env.get(API_KEYS_ENV, ""))
+        given = overrides.pop("api_keys", None)
+        if isinstance(given, Mapping):
+            keys = {**keys, **given}
+        return cls(cloud=cloud, api_keys=keys, **overrides)  # type: ignore[arg-type]
+
+
+def default_store_url(cloud: str) -> str:
+    return f"sqlite:///{Path('var') / f'{cloud}.db'}"

@@ -1,0 +1,104 @@
+"""The HTTP API's wire models: what applications send and receive.
+
+Stored rows are ``robocloud.storage`` records; these are the shapes on the
+wire, named after what they carry (``RequestCreate`` in, ``RequestPublic`` out).
+"""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from robocloud.domain import Task
+
+
+class RequestCreate(Task):
+    """A MODEL.md task, plus an optional label for the application's own use."""
+
+    label: Annotated[str, Field(max_length=200)] | None = None
+
+    def task(self) -> Task:
+        return Task.model_validate(self.model_dump(exclude={"label"}))
+
+
+class Progress(BaseModel):
+    phase: Literal["pending", "travel", "work", "done", "failed", "canceled"]
+    progress: float = Field(ge=0.0, le=1.0)
+
+
+class Assignment(BaseModel):
+    """One robot of the chosen coalition."""
+
+    robot: str
+    cloud: str
+    capabilities: list[str]
+    time: float
+    cost: float
+    progress: Progress | None = None
+
+
+class FrontMember(BaseModel):
+    robots: list[str]
+    time: float
+    cost: float
+    size: int
+
+
+class HistoryEntry(BaseModel):
+    kind: Literal["state", "event"]
+    state: str
+    at: datetime
+    detail: str | None = None
+
+
+class RequestPublic(BaseModel):
+    model_config = ConfigDict(json_schema_extra={"description": "A request and its state."})
+
+    id: str
+    label: str | None
+    state: str
+    reason: str | None
+    created_at: datetime
+    updated_at: datetime
+    task: dict[str, Any]
+    coalition: list[Assignment] | None = None
+    time: float | None = Field(None, description="T of the chosen coalition, seconds")
+    cost: float | None = Field(None, description="C of the chosen coalition")
+    pareto: list[FrontMember] = Field(default_factory=list)
+    optimizer: str | None = None
+    selection_ms: float | None = None
+    history: list[HistoryEntry]
+
+
+class RequestList(BaseModel):
+    items: list[RequestPublic]
+    next: str | None = Field(None, description="cursor for the next page (`before=`)")
+
+
+class RobotPublic(BaseModel):
+    id: str
+    cloud: str
+    kind: str | None = None
+    position: list[float]
+    speed: float
+    battery: float
+    status: str
+    capabilities: list[str]
+    capability_kinds: dict[str, str] = Field(
+        default_factory=dict, description="capability name -> sensing or actuating")
+    request: str | None = Field(None, description="the request the robot is reserved for")
+    progress: Progress | None = None
+    seen_ago: float | None = Field(None, description="seconds since its last state message")
+
+
+class Health(BaseModel):
+    status: Literal["ok"]
+    cloud: str
+    robots: int
+    store: str
+
+
+class ErrorBody(BaseModel):
+    detail: str

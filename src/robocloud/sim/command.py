@@ -1,0 +1,111 @@
+"""``robocloud sim``: a simulated fleet of one cloud, connected to its IaaS.
+
+::
+
+    robocloud sim --cloud cloud-a --robots 100 --connect tcp/127.0.0.1:7447 --speedup 10
+    python -m robocloud.sim.command --cloud cloud-a ...   (the same, without the CLI)
+
+It runs until interrupted (Ctrl-C or SIGTERM).
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import sys
+import threading
+from collections.abc import Sequence
+
+from robocloud.errors import RoboCloudError
+from robocloud.sim.fleet import run_simulator
+
+
+def add_sim_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--cloud", required=True, help="the cloud's name, e.g. cloud-a")
+    parser.add_argument(
+        "--robots", type=int, default=20, metavar="N", help="how many robots (default 20)"
+    )
+    parser.add_argument(
+        "--connect",
+        required=True,
+        action="append",
+        metavar="ENDPOINT",
+        help="the IaaS's Zenoh router, e.g. tcp/127.0.0.1:7447 (repeat for fallbacks)",
+    )
+    parser.add_argument("--seed", type=int, default=0, help="draws the fleet (default 0)")
+    parser.add_argument(
+        "--speedup",
+        type=float,
+        default=1.0,
+        metavar="X",
+        help="simulated time runs X times faster than the clock (default 1)",
+    )
+    parser.add_argument(
+        "--no-churn",
+        dest="churn",
+        action="store_false",
+        help="robots change only by commands and faults, never on their own",
+    )
+    parser.add_argument(
+        "--connect-timeout",
+        type=float,
+        default=10.0,
+        metavar="SECONDS",
+        help="how long to wait for the router (default 10)",
+    )
+
+
+def sim_command(args: argparse.Namespace) -> int:
+    """Run the simulator until SIGINT or SIGTERM; 0 when it stopped cleanly.
+
+    Errors a user can cause are raised as ``RoboCloudError`` for the CLI to map.
+    """
+    stop = threading.Event()
+    previous = {}
+    if threading.current_thread() is threading.main_thread():
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            previous[signum] = signal.signal(signum, lambda *_: stop.set())
+    try:
+        return _run(args, stop)
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+
+
+def _run(args: argparse.Namespace, stop: threading.Event) -> int:
+    print(
+        f"simulating {args.robots} robots of {args.cloud} at speedup {args.speedup:g},"
+        f" connecting to {', '.join(args.connect)}; Ctrl-C stops",
+        file=sys.stderr,
+        flush=True,
+    )
+    run_simulator(
+        args.cloud,
+        args.robots,
+        args.connect,
+        seed=args.seed,
+        speedup=args.speedup,
+        stop_event=stop,
+        churn=args.churn,
+        connect_timeout=args.connect_timeout,
+    )
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="robocloud sim", description="A simulated fleet of one cloud."
+    )
+    add_sim_arguments(parser)
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    try:
+        return sim_command(args)
+    except RoboCloudError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

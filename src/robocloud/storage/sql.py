@@ -1,0 +1,603 @@
+"""``SqlRequestStore``: the request store on SQLite (by default) or PostgreSQL.
+
+SQLAlchemy Core with a sync engine; one short transaction per method, committed
+before it returns. Writers serialize per request: ``SELECT ... FOR UPDATE`` on
+the request's row on PostgreSQL, ``BEGIN IMMEDIATE`` (one writer at a time) on
+SQLite, which runs in WAL mode with a busy timeout so several threads and
+processes can share one file. Reads on PostgreSQL are REPEATABLE READ so a
+request and its history come from one snapshot.
+
+No robot is ever reserved twice because ``reservations.robot_id`` is the
+primary key; when two PostgreSQL transactions race for a robot the loser gets a
+unique violation, and ``reserve`` runs again and reports the robot as taken.
+"""
+
+from __future__ import annotations
+
+import builtins
+import random
+import threading
+import time
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import AbstractContextManager, contextmanager, nullcontext
+from datetime import datetime
+from pathlib import Path
+from typing import Any, TypeVar
+
+from sqlalchemy import (
+    URL,
+    Connection,
+    Engine,
+    Row,
+    and_,
+    create_engine,
+    delete,
+    event,
+    func,
+    insert,
+    or_,
+    select,
+    text,
+    update,
+)
+from sqlalchemy.engine import make_url
+from sqlalchemy.exc import (
+    ArgumentError,
+    DataError,
+    DBAPIError,
+    IntegrityError,
+    ProgrammingError,
+)
+
+from robocloud.domain import ACTIVE_STATES, FINAL_STATES
+from robocloud.errors import InvalidInput
+from robocloud.storage import rules
+from robocloud.storage.records import RequestRecord, StateChange, new_request_id
+from robocloud.storage.schema import metadata, request_history, requests, reservations
+from robocloud.storage.store import StoreUnavailable
+
+T = TypeVar("T")
+
+URL_HINT = "use sqlite:///FILE or postgresql+psycopg://USER@HOST:PORT/DATABASE"
+BUSY_TIMEOUT_S = 15.0  # how long a SQLite writer waits for another process's write
+CONNECT_TIMEOUT_S = 5  # PostgreSQL
+POOL_SIZE, POOL_OVERFLOW = 5, 15  # connections per store: kept, and more under load
+ATTEMPTS = 20  # of a transaction that lost a race (unique violation, deadlock)
+# PostgreSQL: deadlock detected, serialization failure. Both only mean "run it again".
+_TRANSIENT_SQLSTATES = frozenset({"40P01", "40001"})
+_SCHEMA_LOCK = 0x726F626F  # pg_advisory_xact_lock key while creating the tables
+_WRITE = "robocloud_write"  # execution option: this SQLite transaction will write
+
+
+def database_url(url: str) -> URL:
+    """The SQLAlchemy URL of a store URL, or ``InvalidInput`` with a sentence.
+
+    ``postgresql://`` and ``postgres://`` mean ``postgresql+psycopg://``.
+    """
+
+    def refuse(why: str = "") -> InvalidInput:
+        return InvalidInput(
+            f"store URL {url!r} is not a supported database URL{why}; {URL_HINT}.", "store_url"
+        )
+
+    try:
+        parsed = make_url(url)
+    except (ArgumentError, ValueError, TypeError) as error:
+        raise refuse() from error
+    backend, _, driver = parsed.drivername.partition("+")
+    if backend in {"postgresql", "postgres"} and driver in {"", "psycopg"}:
+        return parsed.set(drivername="postgresql+psycopg")
+    if backend == "sqlite" and driver in {"", "pysqlite"}:
+        if parsed.database in {None, "", ":memory:"} or (parsed.database or "").startswith("file:"):
+            raise refuse(" (an in-memory SQLite database; use memory:// for a store in memory)")
+        return parsed.set(drivername="sqlite+pysqlite")
+    raise refuse()
+
+
+class SqlRequestStore:
+    """A ``RequestStore`` in a SQLite file or a PostgreSQL database, created if missing.
+
+    ``clock`` (UTC-aware datetimes) is for tests: it sets creation times and
+    decides when leases lapse.
+    """
+
+    def __init__(self, url: str, *, clock: rules.Clock | None = None) -> None:
+        self._url = database_url(url)
+        self.url = self._url.render_as_string(hide_password=True)
+        self._clock = rules.StoreClock(clock)
+        self._sqlite = self._url.get_backend_name() == "sqlite"
+        # One writer at a time inside this process: SQLite serializes writers
+        # anyway, and waiting on a lock is faster than its busy-retry sleeps.
+        self._write_lock: threading.Lock | None = threading.Lock() if self._sqlite else None
+        self._engine = self._create_engine()
+        try:
+            self._run(self._create_schema, write=True)
+        except BaseException:
+            self._engine.dispose()
+            raise
+
+    def __repr__(self) -> str:
+        return f"SqlRequestStore({self.url!r})"
+
+    # requests
+
+    def create_request(
+        self,
+        application: str,
+        task: dict[str, Any],
+        label: str | None = None,
+        idempotency_key: str | None = None,
+    ) -> tuple[RequestRecord, bool]:
+        rules.check_name(application, "application", "application")
+        rules.check_optional_name(idempotency_key, "idempotency_key", "idempotency_key")
+        rules.check_text(label, "label")
+        task_text = rules.dump_json(task, "task")
+
+        def by_key(conn: Connection) -> RequestRecord | None:
+            row = conn.execute(
+                select(requests).where(
+                    requests.c.application == application,
+                    requests.c.idempotency_key == idempotency_key,
+                )
+            ).first()
+            return None if row is None else self._records(conn, [row])[0]
+
+        def create(conn: Connection) -> tuple[RequestRecord, bool]:
+            if idempotency_key is not None:
+                existing = by_key(conn)
+                if existing is not None:
+                    return existing, False
+            request_id = new_request_id()
+            now = self._clock()
+            conn.execute(
+                insert(requests).values(
+                    id=request_id,
+                    application=application,
+                    label=label,
+                    task=task_text,
+                    state="received",
+                    created_at=now,
+                    updated_at=now,
+                    idempotency_key=idempotency_key,
+                )
+            )
+            self._append(conn, request_id, "state", "received", None, now)
+            return self._load(conn, request_id), True
+
+        for _ in range(ATTEMPTS):
+            try:
+                return self._run(create, write=True)
+            except IntegrityError:
+                # Another transaction took the idempotency key (PostgreSQL;
+                # SQLite writers never overlap) or, once in 2**60, the id.
+                if idempotency_key is not None:
+                    existing = self._run(by_key, write=False)
+                    if existing is not None:
+                        return existing, False
+        raise StoreUnavailable(f"The store at {self.url} keeps refusing new requests.", self.url)
+
+    def get(self, request_id: str, application: str | None = None) -> RequestRecord | None:
+        def work(conn: Connection) -> RequestRecord | None:
+            query = select(requests).where(requests.c.id == request_id)
+            if application is not None:
+                query = query.where(requests.c.application == application)
+            row = conn.execute(query).first()
+            return None if row is None else self._records(conn, [row])[0]
+
+        return self._run(work, write=False)
+
+    def list(
+        self,
+        application: str,
+        state: str | None = None,
+        limit: int = 50,
+        before: str | None = None,
+    ) -> tuple[builtins.list[RequestRecord], str | None]:
+        if state is not None:
+            rules.check_state(state)
+        rules.check_limit(limit)
+
+        def work(conn: Connection) -> tuple[builtins.list[RequestRecord], str | None]:
+            query = select(requests).where(requests.c.application == application)
+            if state is not None:
+                query = query.where(requests.c.state == state)
+            if before is not None:
+                edge = conn.execute(
+                    select(requests.c.created_at).where(
+                        requests.c.id == before, requests.c.application == application
+                    )
+                ).scalar_one_or_none()
+                if edge is None:
+                    raise rules.bad_cursor(before)
+                query = query.where(
+                    or_(
+                        requests.c.created_at < edge,
+                        and_(requests.c.created_at == edge, requests.c.id < before),
+                    )
+                )
+            query = query.order_by(requests.c.created_at.desc(), requests.c.id.desc())
+            rows = conn.execute(query.limit(limit + 1)).all()
+            page = self._records(conn, rows[:limit])
+            return page, (page[-1].id if len(rows) > limit else None)
+
+        return self._run(work, write=False)
+
+    def transition(
+        self,
+        request_id: str,
+        new_state: str,
+        reason: str | None = None,
+        detail: str | None = None,
+        selection: dict[str, Any] | None = None,
+    ) -> RequestRecord:
+        rules.check_state(new_state, "new_state")
+        rules.check_text(reason, "reason")
+        rules.check_text(detail, "detail")
+        selection_text = None if selection is None else rules.dump_json(selection, "selection")
+
+        def work(conn: Connection) -> RequestRecord:
+            current = self._lock(conn, request_id)
+            rules.check_move(request_id, current, new_state)
+            now = self._clock()
+            values: dict[str, Any] = {"state": new_state, "updated_at": now}
+            if reason is not None:
+                values["reason"] = reason
+            if selection_text is not None:
+                values["selection"] = selection_text
+            conn.execute(update(requests).where(requests.c.id == request_id).values(values))
+            self._append(conn, request_id, "state", new_state, detail, now)
+            if new_state in FINAL_STATES:
+                conn.execute(delete(reservations).where(reservations.c.request_id == request_id))
+            return self._load(conn, request_id)
+
+        return self._run(work, write=True)
+
+    def add_event(self, request_id: str, detail: str) -> RequestRecord:
+        rules.check_text(detail, "detail")
+
+        def work(conn: Connection) -> RequestRecord:
+            current = self._lock(conn, request_id)
+            now = self._clock()
+            conn.execute(update(requests).where(requests.c.id == request_id).values(updated_at=now))
+            self._append(conn, request_id, "event", current, detail, now)
+            return self._load(conn, request_id)
+
+        return self._run(work, write=True)
+
+    def set_selection(self, request_id: str, selection: dict[str, Any]) -> RequestRecord:
+        selection_text = rules.dump_json(selection, "selection")
+
+        def work(conn: Connection) -> RequestRecord:
+            self._lock(conn, request_id)
+            conn.execute(
+                update(requests)
+                .where(requests.c.id == request_id)
+                .values(selection=selection_text, updated_at=self._clock())
+            )
+            return self._load(conn, request_id)
+
+        return self._run(work, write=True)
+
+    def active(self) -> builtins.list[RequestRecord]:
+        def work(conn: Connection) -> builtins.list[RequestRecord]:
+            rows = conn.execute(
+                select(requests)
+                .where(requests.c.state.in_(sorted(ACTIVE_STATES)))
+                .order_by(requests.c.created_at, requests.c.id)
+            ).all()
+            return self._records(conn, rows)
+
+        return self._run(work, write=False)
+
+    # reservations
+
+    def reserve(
+        self,
+        request_id: str,
+        robot_ids: Sequence[str],
+        lease_seconds: float | None = None,
+    ) -> builtins.list[str]:
+        robots = rules.check_robots(robot_ids)
+        rules.lease_end(self._clock(), lease_seconds)  # check it before any work
+
+        def work(conn: Connection) -> builtins.list[str]:
+            self._lock_holder(conn, request_id)
+            return self._hold(conn, request_id, robots, lease_seconds)
+
+        return self._run(work, write=True, retry_integrity=True)
+
+    def confirm(self, request_id: str, robot_ids: Sequence[str]) -> builtins.list[str]:
+        return self.reserve(request_id, robot_ids)
+
+    def release(self, request_id: str, robot_ids: Sequence[str] | None = None) -> None:
+        robots = None if robot_ids is None else rules.check_robots(robot_ids)
+
+        def work(conn: Connection) -> None:
+            statement = delete(reservations).where(reservations.c.request_id == request_id)
+            if robots is not None:
+                statement = statement.where(reservations.c.robot_id.in_(robots))
+            conn.execute(statement)
+
+        self._run(work, write=True)
+
+    def replace(
+        self,
+        request_id: str,
+        old_robot: str,
+        new_robot: str,
+        lease_seconds: float | None = None,
+    ) -> builtins.list[str]:
+        rules.check_name(old_robot, "a robot id", "old_robot")
+        robots = rules.check_robots([new_robot])
+        rules.lease_end(self._clock(), lease_seconds)
+
+        def work(conn: Connection) -> builtins.list[str]:
+            self._lock_holder(conn, request_id)
+            taken = self._hold(conn, request_id, robots, lease_seconds)
+            if not taken and old_robot != new_robot:
+                conn.execute(
+                    delete(reservations).where(
+                        reservations.c.request_id == request_id,
+                        reservations.c.robot_id == old_robot,
+                    )
+                )
+            return taken
+
+        return self._run(work, write=True, retry_integrity=True)
+
+    def reservations(self, request_id: str | None = None) -> dict[str, str]:
+        def work(conn: Connection) -> dict[str, str]:
+            now = self._clock()
+            query = (
+                select(reservations.c.robot_id, reservations.c.request_id)
+                .where(or_(reservations.c.expires_at.is_(None), reservations.c.expires_at >= now))
+                .order_by(reservations.c.robot_id)
+            )
+            if request_id is not None:
+                query = query.where(reservations.c.request_id == request_id)
+            return {row.robot_id: row.request_id for row in conn.execute(query)}
+
+        return self._run(work, write=False)
+
+    def close(self) -> None:
+        self._engine.dispose()
+
+    # transactions
+
+    def _create_engine(self) -> Engine:
+        if not self._sqlite:
+            try:
+                return create_engine(
+                    self._url,
+                    pool_pre_ping=True,
+                    pool_size=POOL_SIZE,
+                    max_overflow=POOL_OVERFLOW,
+                    connect_args={"connect_timeout": CONNECT_TIMEOUT_S},
+                )
+            except ImportError as error:
+                raise StoreUnavailable(
+                    f"The store at {self.url} needs the psycopg package "
+                    f"(pip install 'psycopg[binary]'): {error}.",
+                    self.url,
+                ) from error
+        folder = Path(self._url.database or "").parent
+        if not folder.is_dir():
+            raise StoreUnavailable(
+                f"Cannot open the store at {self.url}: the folder {folder} does not exist.",
+                self.url,
+            )
+        engine = create_engine(
+            self._url,
+            pool_size=POOL_SIZE,
+            max_overflow=POOL_OVERFLOW,
+            connect_args={"timeout": BUSY_TIMEOUT_S, "check_same_thread": False},
+        )
+
+        @event.listens_for(engine, "connect")
+        def _on_connect(dbapi_connection: Any, _record: Any) -> None:
+            # The driver must not open transactions itself; _on_begin does.
+            dbapi_connection.isolation_level = None
+            cursor = dbapi_connection.cursor()
+            cursor.execute(f"PRAGMA busy_timeout = {int(BUSY_TIMEOUT_S * 1000)}")
+            cursor.execute("PRAGMA journal_mode = WAL")
+            # In WAL mode NORMAL still survives a crash of the process (kill -9):
+            # a commit is in the WAL before it returns; only a power loss or an
+            # OS crash may take back the last commits. FULL would add an fsync
+            # (about 3 ms here) to every state change.
+            cursor.execute("PRAGMA synchronous = NORMAL")
+            cursor.execute("PRAGMA foreign_keys = ON")
+            cursor.close()
+
+        @event.listens_for(engine, "begin")
+        def _on_begin(connection: Connection) -> None:
+            # IMMEDIATE takes the write lock up front: a deferred transaction
+            # that reads and then writes can fail at once in WAL mode
+            # instead of waiting its turn.
+            writes = connection.get_execution_options().get(_WRITE, False)
+            connection.exec_driver_sql("BEGIN IMMEDIATE" if writes else "BEGIN")
+
+        return engine
+
+    @contextmanager
+    def _transaction(self, *, write: bool) -> Iterator[Connection]:
+        lock: AbstractContextManager[Any] = (
+            self._write_lock if write and self._write_lock is not None else nullcontext()
+        )
+        with lock, self._engine.connect() as conn:
+            if write:
+                conn.execution_options(**{_WRITE: True})
+            elif not self._sqlite:
+                conn.execution_options(isolation_level="REPEATABLE READ")
+            with conn.begin():
+                yield conn
+
+    def _run(
+        self,
+        work: Callable[[Connection], T],
+        *,
+        write: bool,
+        retry_integrity: bool = False,
+    ) -> T:
+        """``work`` in one transaction, run again when it only lost a race."""
+        attempt = 0
+        while True:
+            attempt += 1
+            try:
+                with self._transaction(write=write) as conn:
+                    return work(conn)
+            except IntegrityError:
+                if retry_integrity and attempt < ATTEMPTS:
+                    continue
+                raise
+            except DBAPIError as error:
+                sqlstate = getattr(error.orig, "sqlstate", None)
+                if sqlstate in _TRANSIENT_SQLSTATES and attempt < ATTEMPTS:
+                    time.sleep(random.uniform(0, 0.002 * attempt))
+                    continue
+                if isinstance(error, ProgrammingError | DataError) and not (
+                    error.connection_invalidated
+                ):
+                    raise  # a mistake in this module, not the database's state
+                raise self._unavailable(error) from error
+
+    def _unavailable(self, error: DBAPIError) -> StoreUnavailable:
+        cause = str(error.orig).strip().splitlines()[0] if str(error.orig).strip() else ""
+        cause = cause.removeprefix("connection failed: ").rstrip(".")
+        return StoreUnavailable(f"Cannot use the store at {self.url}: {cause}.", self.url)
+
+    def _create_schema(self, conn: Connection) -> None:
+        if not self._sqlite:
+            # Two processes opening a new database must not both create the tables.
+            conn.execute(text("SELECT pg_advisory_xact_lock(:key)"), {"key": _SCHEMA_LOCK})
+        metadata.create_all(conn)
+
+    # rows
+
+    def _lock(self, conn: Connection, request_id: str) -> str:
+        """Lock the request's row until the transaction ends and return its state.
+
+        FOR UPDATE is a no-op on SQLite, whose write transaction already
+        excludes every other writer.
+        """
+        state = conn.execute(
+            select(requests.c.state).where(requests.c.id == request_id).with_for_update()
+        ).scalar_one_or_none()
+        if state is None:
+            raise rules.no_such_request(request_id)
+        return str(state)
+
+    def _lock_holder(self, conn: Connection, request_id: str) -> None:
+        rules.check_can_hold_robots(request_id, self._lock(conn, request_id))
+
+    def _hold(
+        self,
+        conn: Connection,
+        request_id: str,
+        robots: builtins.list[str],
+        lease_seconds: float | None,
+    ) -> builtins.list[str]:
+        """Reserve ``robots`` for the (locked) request, or return those another holds."""
+        now = self._clock()
+        expires_at = rules.lease_end(now, lease_seconds)
+        # A lapsed lease is free: delete it, whoever held it.
+        conn.execute(
+            delete(reservations).where(
+                reservations.c.robot_id.in_(robots), reservations.c.expires_at < now
+            )
+        )
+        held = {
+            row.robot_id: row
+            for row in conn.execute(select(reservations).where(reservations.c.robot_id.in_(robots)))
+        }
+        taken = [r for r in robots if r in held and held[r].request_id != request_id]
+        if taken:
+            return taken
+        new = sorted(r for r in robots if r not in held)  # one order: no deadlocks
+        if new:
+            # One multi-row INSERT (not executemany, which psycopg pipelines
+            # and then logs the unique violation of a lost race as an error).
+            conn.execute(
+                insert(reservations).values(
+                    [
+                        {
+                            "robot_id": r,
+                            "request_id": request_id,
+                            "expires_at": expires_at,
+                            "created_at": now,
+                        }
+                        for r in new
+                    ]
+                )
+            )
+        leased = [r for r in robots if r in held and held[r].expires_at is not None]
+        if leased:
+            extend = update(reservations).where(reservations.c.robot_id.in_(leased))
+            if expires_at is None:
+                conn.execute(extend.values(expires_at=None))
+            else:
+                conn.execute(
+                    extend.where(reservations.c.expires_at < expires_at).values(
+                        expires_at=expires_at
+                    )
+                )
+        return []
+
+    def _append(
+        self,
+        conn: Connection,
+        request_id: str,
+        kind: str,
+        state: str,
+        detail: str | None,
+        at: datetime,
+    ) -> None:
+        """Add a history line; the caller holds the request's row lock, so seq is safe."""
+        last = conn.execute(
+            select(func.coalesce(func.max(request_history.c.seq), 0)).where(
+                request_history.c.request_id == request_id
+            )
+        ).scalar_one()
+        conn.execute(
+            insert(request_history).values(
+                request_id=request_id, seq=last + 1, kind=kind, state=state, detail=detail, at=at
+            )
+        )
+
+    def _load(self, conn: Connection, request_id: str) -> RequestRecord:
+        row = conn.execute(select(requests).where(requests.c.id == request_id)).one()
+        return self._records(conn, [row])[0]
+
+    def _records(self, conn: Connection, rows: Sequence[Row[Any]]) -> builtins.list[RequestRecord]:
+        history: dict[str, builtins.list[StateChange]] = {row.id: [] for row in rows}
+        ids = builtins.list(history)
+        for start in range(0, len(ids), 500):
+            lines = conn.execute(
+                select(request_history)
+                .where(request_history.c.request_id.in_(ids[start : start + 500]))
+                .order_by(request_history.c.request_id, request_history.c.seq)
+            )
+            for line in lines:
+                history[line.request_id].append(
+                    StateChange(
+                        state=line.state,
+                        at=line.at,
+                        detail=line.detail,
+                        kind="event" if line.kind == "event" else "state",
+                    )
+                )
+        return [
+            RequestRecord(
+                id=row.id,
+                application=row.application,
+                label=row.label,
+                task=rules.load_json(row.task),
+                state=row.state,
+                reason=row.reason,
+                created_at=row.created_at,
+                updated_at=row.updated_at,
+                selection=None if row.selection is None else rules.load_json(row.selection),
+                idempotency_key=row.idempotency_key,
+                history=tuple(history[row.id]),
+            )
+            for row in rows
+        ]

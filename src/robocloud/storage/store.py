@@ -1,0 +1,143 @@
+"""The seam: what the IaaS asks of its request store.
+
+Two implementations: ``SqlRequestStore`` (SQLite or PostgreSQL) and
+``MemoryRequestStore`` (for fast tests). Every method is synchronous and
+thread-safe, and every change is committed before the method returns.
+"""
+
+from __future__ import annotations
+
+import builtins
+from collections.abc import Sequence
+from typing import Any, Protocol
+
+from robocloud.errors import RoboCloudError
+from robocloud.storage.records import RequestRecord
+
+
+class StoreUnavailable(RoboCloudError):
+    """The database cannot be reached or opened; the sentence names it (without password)."""
+
+    def __init__(self, message: str, url: str | None = None) -> None:
+        super().__init__(message)
+        self.url = url
+
+
+class RequestStore(Protocol):
+    """Requests, their state history, and robot reservations of one cloud.
+
+    Errors: ``InvalidInput`` (a bad argument), ``NotFound`` (no such request),
+    ``Conflict`` (a move the request's state does not allow), ``StoreUnavailable``.
+    """
+
+    def create_request(
+        self,
+        application: str,
+        task: dict[str, Any],
+        label: str | None = None,
+        idempotency_key: str | None = None,
+    ) -> tuple[RequestRecord, bool]:
+        """A new request in state ``received``, and True.
+
+        If ``application`` already used ``idempotency_key``, its request as it
+        is now, and False; nothing is created then, even under a race.
+        """
+        ...
+
+    def get(self, request_id: str, application: str | None = None) -> RequestRecord | None:
+        """The request, or None; None also when ``application`` is given and not its owner."""
+        ...
+
+    def list(
+        self,
+        application: str,
+        state: str | None = None,
+        limit: int = 50,
+        before: str | None = None,
+    ) -> tuple[builtins.list[RequestRecord], str | None]:
+        """One page of ``application``'s requests, newest first, and the next page's cursor.
+
+        ``before`` is the cursor returned with the previous page (the id of its
+        last request); the cursor is None on the last page.
+        """
+        ...
+
+    def transition(
+        self,
+        request_id: str,
+        new_state: str,
+        reason: str | None = None,
+        detail: str | None = None,
+        selection: dict[str, Any] | None = None,
+    ) -> RequestRecord:
+        """Move the request to ``new_state`` if ``robocloud.domain.can_move`` allows it.
+
+        ``reason`` and ``selection`` replace the stored ones when given. Moving
+        to a final state releases every reservation of the request, in the same
+        transaction. Raises ``Conflict`` for a refused move.
+        """
+        ...
+
+    def add_event(self, request_id: str, detail: str) -> RequestRecord:
+        """Add a history entry that does not change the state."""
+        ...
+
+    def set_selection(self, request_id: str, selection: dict[str, Any]) -> RequestRecord:
+        """Replace the request's selection (opaque JSON)."""
+        ...
+
+    def active(self) -> builtins.list[RequestRecord]:
+        """Every request not in a final state, oldest first (to resume them on restart)."""
+        ...
+
+    def reserve(
+        self,
+        request_id: str,
+        robot_ids: Sequence[str],
+        lease_seconds: float | None = None,
+    ) -> builtins.list[str]:
+        """Reserve the robots for the request, all or nothing.
+
+        Returns [] on success, or the robots already held by another request
+        (in the order given), and then nothing is reserved. With
+        ``lease_seconds`` the reservation is a lease that lapses unless
+        confirmed; a lapsed lease counts as free. Robots the request already
+        holds stay held (a lease is extended, never shortened; a firm one stays
+        firm). Raises ``Conflict`` if the request is in a final state.
+        """
+        ...
+
+    def confirm(self, request_id: str, robot_ids: Sequence[str]) -> builtins.list[str]:
+        """Make the request's hold on the robots firm (no expiry).
+
+        The same as ``reserve`` without a lease: a robot whose lease lapsed is
+        taken again if nobody else took it; returns the robots held by another
+        request, and then nothing changes.
+        """
+        ...
+
+    def release(self, request_id: str, robot_ids: Sequence[str] | None = None) -> None:
+        """Release the request's hold on these robots (None: on all of its robots)."""
+        ...
+
+    def replace(
+        self,
+        request_id: str,
+        old_robot: str,
+        new_robot: str,
+        lease_seconds: float | None = None,
+    ) -> builtins.list[str]:
+        """Reserve ``new_robot`` and release ``old_robot`` in one transaction.
+
+        Returns [] on success, or ``[new_robot]`` when another request holds it
+        (and then ``old_robot`` stays reserved).
+        """
+        ...
+
+    def reservations(self, request_id: str | None = None) -> dict[str, str]:
+        """Robot id -> request id of every unexpired reservation (of one request if given)."""
+        ...
+
+    def close(self) -> None:
+        """Release the store's connections; the store is not used afterwards."""
+        ...

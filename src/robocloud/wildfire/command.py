@@ -1,0 +1,125 @@
+"""``robocloud wildfire``: the Wildfire Suppression Application's server.
+
+::
+
+    robocloud wildfire --iaas http://127.0.0.1:8101 [--api-key KEY] [--listen 127.0.0.1:8000]
+    python -m robocloud.wildfire.command --iaas ...   (the same, without the CLI)
+
+The key may also come from ``ROBOCLOUD_WILDFIRE_API_KEY``, which keeps it out of
+the process list. The server runs until interrupted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import sys
+from collections.abc import Mapping, Sequence
+from urllib.parse import urlsplit
+
+from robocloud.errors import InvalidInput, RoboCloudError
+
+API_KEY_ENV = "ROBOCLOUD_WILDFIRE_API_KEY"
+DEFAULT_LISTEN = ("127.0.0.1", 8000)
+
+
+def listen_address(text: str) -> tuple[str, int]:
+    """``127.0.0.1:8000`` -> ("127.0.0.1", 8000); ``[::1]:8000`` for IPv6."""
+    host, sep, port = text.rpartition(":")
+    if not sep or not port.isdigit() or not 0 < int(port) < 65536:
+        raise argparse.ArgumentTypeError(f"{text!r} is not HOST:PORT")
+    return host.strip("[]") or "127.0.0.1", int(port)
+
+
+def iaas_url(text: str) -> str:
+    parts = urlsplit(text)
+    if parts.scheme not in ("http", "https") or not parts.netloc:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an http:// or https:// URL")
+    return text.rstrip("/")
+
+
+def add_wildfire_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--iaas",
+        required=True,
+        type=iaas_url,
+        metavar="URL",
+        help="the IaaS's HTTP API, e.g. http://127.0.0.1:8101",
+    )
+    parser.add_argument(
+        "--api-key",
+        default=None,
+        metavar="KEY",
+        help=f"the application's key at the IaaS (default: ${API_KEY_ENV})",
+    )
+    parser.add_argument(
+        "--listen",
+        type=listen_address,
+        default=DEFAULT_LISTEN,
+        metavar="HOST:PORT",
+        help="where to serve the page (default 127.0.0.1:8000)",
+    )
+    parser.add_argument(
+        "--timeout",
+        type=float,
+        default=10.0,
+        metavar="SECONDS",
+        help="how long to wait for the IaaS (default 10)",
+    )
+    parser.add_argument(
+        "--log-level", default="info", choices=("debug", "info", "warning", "error")
+    )
+
+
+def page_url(host: str, port: int) -> str:
+    shown = f"[{host}]" if ":" in host else host
+    return f"http://{shown}:{port}/"
+
+
+def wildfire_command(args: argparse.Namespace, environ: Mapping[str, str] | None = None) -> int:
+    """Serve the page until interrupted; user errors are raised as ``RoboCloudError``."""
+    import uvicorn
+
+    from robocloud.wildfire.app import create_wildfire_app
+
+    if args.timeout <= 0:
+        raise InvalidInput("--timeout must be positive.", "--timeout")
+    env = os.environ if environ is None else environ
+    api_key = args.api_key or env.get(API_KEY_ENV) or None
+    host, port = args.listen
+    logging.basicConfig(
+        level=args.log_level.upper(),
+        format="%(asctime)s wildfire %(levelname)s %(name)s: %(message)s",
+    )
+    app = create_wildfire_app(args.iaas, api_key, timeout=args.timeout)
+    config = uvicorn.Config(app, host=host, port=port, log_level=args.log_level, access_log=False)
+    server = uvicorn.Server(config)
+    print(
+        f"wildfire: serving {page_url(host, port)} for the IaaS at {args.iaas}"
+        f"{'' if api_key else ' (no API key given)'}; Ctrl-C stops",
+        file=sys.stderr,
+        flush=True,
+    )
+    server.run()
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="robocloud wildfire",
+        description="Serve the Wildfire Suppression Application for one IaaS.",
+    )
+    add_wildfire_arguments(parser)
+    args = parser.parse_args(argv)
+    try:
+        return wildfire_command(args)
+    except RoboCloudError as error:
+        print(f"robocloud wildfire: {error}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

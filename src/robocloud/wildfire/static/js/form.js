@@ -1,0 +1,254 @@
+// "Send a Request": the task form. Every field is checked here as MODEL.md
+// asks, and the error is shown beside its field; the IaaS's own sentence
+// (422) is placed beside the field it names.
+
+import { el, fmtNumber } from "./util.js";
+
+const MAX_COUNT = 10000;
+const MAX_ROBOTS = 100000;
+const FIELDS = ["location", "capabilities", "max_robots", "max_cost", "max_time", "min_battery", "label", "form"];
+
+function sentence(text) {
+  const trimmed = String(text).trim();
+  const capital = trimmed.charAt(0).toUpperCase() + trimmed.slice(1);
+  return /[.!?]$/.test(capital) ? capital : `${capital}.`;
+}
+
+function readNumber(input) {
+  const text = input.value.trim();
+  if (text === "") return { empty: true, value: NaN };
+  // A number input holds "" for text it cannot read; badInput tells them apart.
+  if (input.validity && input.validity.badInput) return { empty: false, value: NaN };
+  return { empty: false, value: Number(text) };
+}
+
+export class RequestForm {
+  constructor(form, { onSubmit, onLocation }) {
+    this.form = form;
+    this.onSubmit = onSubmit;
+    this.onLocation = onLocation;
+    this.inputs = {
+      x: form.querySelector("#loc-x"),
+      y: form.querySelector("#loc-y"),
+      max_robots: form.querySelector("#max-robots"),
+      max_cost: form.querySelector("#max-cost"),
+      max_time: form.querySelector("#max-time"),
+      min_battery: form.querySelector("#min-battery"),
+      label: form.querySelector("#label"),
+    };
+    this.caps = new Map();      // name -> {kind, input, avail, row, error}
+    this.defaulted = false;
+    this.button = form.querySelector("#send");
+    this.result = form.querySelector("#send-result");
+    form.addEventListener("submit", (event) => { event.preventDefault(); this.submit(); });
+    for (const name of ["x", "y"]) {
+      this.inputs[name].addEventListener("input", () => {
+        const x = Number(this.inputs.x.value);
+        const y = Number(this.inputs.y.value);
+        const ready = this.inputs.x.value.trim() !== "" && this.inputs.y.value.trim() !== "";
+        this.onLocation(ready && Number.isFinite(x) && Number.isFinite(y) ? [x, y] : null);
+      });
+    }
+    // A field's error goes as soon as the field is changed.
+    form.addEventListener("input", (event) => this.clearFor(event.target));
+  }
+
+  setLocation([x, y]) {
+    this.inputs.x.value = String(x);
+    this.inputs.y.value = String(y);
+    this.clearError("location");
+  }
+
+  // The capabilities the fleet actually has, with how many robots bring each.
+  setCapabilities(offers) {
+    for (const offer of offers) {
+      let cap = this.caps.get(offer.name);
+      if (!cap || cap.kind !== offer.kind) {
+        if (cap) cap.row.remove();
+        cap = this.capRow(offer);
+        this.caps.set(offer.name, cap);
+        const grid = this.form.querySelector(`#caps-${offer.kind === "actuating" ? "actuating" : "sensing"}`);
+        const rows = [...grid.children].filter((row) => row.dataset.cap < offer.name);
+        if (rows.length) rows[rows.length - 1].after(cap.row); else grid.prepend(cap.row);
+      }
+      cap.avail.textContent = `${fmtNumber(offer.idle)} idle of ${fmtNumber(offer.robots)}`;
+      cap.idle = offer.idle;
+    }
+    this.form.querySelector("#caps-empty").hidden = this.caps.size > 0;
+    if (!this.defaulted && this.caps.size) {
+      // Start from a request the fleet can meet: one robot with the most
+      // common idle actuating capability and one with the sensing one.
+      this.defaulted = true;
+      for (const kind of ["actuating", "sensing"]) {
+        const best = offers.filter((o) => o.kind === kind).sort((a, b) => b.idle - a.idle)[0];
+        if (best && best.idle > 0) this.caps.get(best.name).input.value = "1";
+      }
+      this.markWanted();
+    }
+  }
+
+  capRow(offer) {
+    const id = `cap-${offer.name.replace(/[^A-Za-z0-9_-]/g, "_")}`;
+    const input = el("input", { id, type: "number", min: 0, max: MAX_COUNT, step: 1, value: 0,
+      inputmode: "numeric", "data-cap": offer.name, "aria-describedby": `err-${id} err-capabilities` });
+    const avail = el("span", { class: "avail" });
+    const error = el("p", { class: "error", id: `err-${id}` });
+    const row = el("div", { class: "cap", "data-cap": offer.name },
+      el("label", { for: id }, el("span", { class: "name", text: offer.name }), avail), input, error);
+    input.addEventListener("input", () => this.markWanted());
+    return { kind: offer.kind, input, avail, row, error, idle: 0 };
+  }
+
+  markWanted() {
+    for (const cap of this.caps.values()) {
+      cap.row.classList.toggle("wanted", Number(cap.input.value) >= 1);
+    }
+  }
+
+  // --- checking ----------------------------------------------------------
+  read() {
+    const errors = {};
+    const x = readNumber(this.inputs.x);
+    const y = readNumber(this.inputs.y);
+    if (x.empty && y.empty) errors.location = "Place the fire: click the map, or type x and y.";
+    else if (!Number.isFinite(x.value)) errors.location = "x must be a number of metres.";
+    else if (!Number.isFinite(y.value)) errors.location = "y must be a number of metres.";
+
+    const sensing = {};
+    const actuating = {};
+    let most = 0;
+    let mostName = null;
+    for (const [name, cap] of this.caps) {
+      const count = readNumber(cap.input);
+      const value = count.empty ? 0 : count.value;
+      if (!Number.isInteger(value) || value < 0 || value > MAX_COUNT) {
+        errors[`cap:${name}`] = `${name}: a whole number from 0 to ${fmtNumber(MAX_COUNT)}.`;
+        continue;
+      }
+      if (value >= 1) (cap.kind === "actuating" ? actuating : sensing)[name] = value;
+      if (value > most) { most = value; mostName = name; }
+    }
+    if (!this.caps.size) errors.capabilities = "The fleet has not reported its capabilities yet.";
+    else if (!Object.keys(sensing).length && !Object.keys(actuating).length
+      && !Object.keys(errors).some((k) => k.startsWith("cap:"))) {
+      errors.capabilities = "Ask for at least one capability: a count of 1 or more.";
+    }
+
+    const maxRobots = readNumber(this.inputs.max_robots);
+    if (maxRobots.empty) errors.max_robots = "Max robots is required.";
+    else if (!Number.isInteger(maxRobots.value) || maxRobots.value < 1 || maxRobots.value > MAX_ROBOTS) {
+      errors.max_robots = `Max robots must be a whole number from 1 to ${fmtNumber(MAX_ROBOTS)}.`;
+    } else if (most > maxRobots.value) {
+      errors.max_robots = `${mostName} needs ${most} robots, more than max robots allows.`;
+    }
+    const maxCost = readNumber(this.inputs.max_cost);
+    if (maxCost.empty) errors.max_cost = "Max cost is required.";
+    else if (!Number.isFinite(maxCost.value) || maxCost.value <= 0) errors.max_cost = "Max cost must be a positive number.";
+    const maxTime = readNumber(this.inputs.max_time);
+    if (maxTime.empty) errors.max_time = "Max time is required.";
+    else if (!Number.isFinite(maxTime.value) || maxTime.value <= 0) errors.max_time = "Max time must be a positive number of seconds.";
+    const battery = readNumber(this.inputs.min_battery);
+    const minBattery = battery.empty ? 0 : battery.value;
+    if (!Number.isFinite(minBattery) || minBattery < 0 || minBattery > 100) {
+      errors.min_battery = "Min battery must be a percentage from 0 to 100.";
+    }
+    const label = this.inputs.label.value.trim();
+    if (label.length > 200) errors.label = "The label may have at most 200 characters.";
+
+    const task = {
+      location: [x.value, y.value], sensing, actuating,
+      max_robots: maxRobots.value, max_cost: maxCost.value, max_time: maxTime.value,
+      min_battery: minBattery,
+      priority: this.form.querySelector("input[name=priority]:checked")?.value || "balanced",
+      execution: this.form.querySelector("input[name=execution]:checked")?.value || "parallel",
+    };
+    if (label) task.label = label;
+    return { task, errors };
+  }
+
+  async submit() {
+    this.clearErrors();
+    this.setResult("", null);
+    const { task, errors } = this.read();
+    if (Object.keys(errors).length) {
+      this.showErrors(errors);
+      this.setResult("Check the fields marked in red.", "error");
+      return;
+    }
+    this.button.disabled = true;
+    this.setResult("Sending…", null);
+    try {
+      await this.onSubmit(task);
+    } finally {
+      this.button.disabled = false;
+    }
+  }
+
+  // --- errors beside the fields -----------------------------------------
+  targetsOf(field) {
+    if (field === "location") return [this.inputs.x, this.inputs.y];
+    if (field === "capabilities") return [...this.caps.values()].map((c) => c.input);
+    if (field.startsWith("cap:")) {
+      const cap = this.caps.get(field.slice(4));
+      return cap ? [cap.input] : [];
+    }
+    return this.inputs[field] ? [this.inputs[field]] : [];
+  }
+
+  errorSlot(field) {
+    if (field.startsWith("cap:")) return this.caps.get(field.slice(4))?.error ?? null;
+    return this.form.querySelector(`[data-error-for="${field}"]`);
+  }
+
+  showErrors(errors) {
+    let first = null;
+    for (const [field, message] of Object.entries(errors)) {
+      const slot = this.errorSlot(field);
+      if (slot) slot.textContent = message;
+      for (const input of this.targetsOf(field)) {
+        input.setAttribute("aria-invalid", "true");
+        first = first || input;
+      }
+    }
+    if (first) first.focus();
+  }
+
+  // The IaaS names the field first ("max_cost: input should be ..."; "location is missing").
+  showServerError(detail) {
+    const match = /^(location|sensing|actuating|max_robots|max_cost|max_time|min_battery|priority|execution|label|input)(?:\.([^\s:[]+))?(?:\[\d+\])?(?::| is )/.exec(detail);
+    let field = "form";
+    if (match) {
+      const [, name, sub] = match;
+      if ((name === "sensing" || name === "actuating") && sub && this.caps.has(sub)) field = `cap:${sub}`;
+      else if (name === "sensing" || name === "actuating" || (name === "input" && /capabilit/.test(detail))) field = "capabilities";
+      else if (FIELDS.includes(name)) field = name;
+    }
+    this.showErrors({ [field]: sentence(detail) });
+  }
+
+  clearError(field) {
+    const slot = this.errorSlot(field);
+    if (slot) slot.textContent = "";
+    for (const input of this.targetsOf(field)) input.removeAttribute("aria-invalid");
+  }
+
+  clearFor(input) {
+    if (input === this.inputs.x || input === this.inputs.y) this.clearError("location");
+    else if (input.dataset && input.dataset.cap) { this.clearError(`cap:${input.dataset.cap}`); this.clearError("capabilities"); }
+    else {
+      for (const [field, candidate] of Object.entries(this.inputs)) {
+        if (candidate === input) this.clearError(field);
+      }
+    }
+  }
+
+  clearErrors() {
+    for (const slot of this.form.querySelectorAll(".error")) slot.textContent = "";
+    for (const input of this.form.querySelectorAll("[aria-invalid]")) input.removeAttribute("aria-invalid");
+  }
+
+  setResult(text, kind) {
+    this.result.textContent = text;
+    if (kind) this.result.dataset.kind = kind; else delete this.result.dataset.kind;
+  }
+}

@@ -1,0 +1,87 @@
+// The Pareto front of a request: time against cost, the number of robots as
+// the marker's size, the chosen coalition marked. Inline SVG.
+
+import { fmtNumber, svg, ticks } from "./util.js";
+
+const W = 380;
+const H = 190;
+const M = { left: 48, right: 14, top: 14, bottom: 34 };
+
+export function radiusFor(size) {
+  return Math.min(16, 4 + 2.4 * (Math.max(1, size) - 1));
+}
+
+function domain(values) {
+  let lo = Math.min(...values);
+  let hi = Math.max(...values);
+  const span = hi - lo;
+  const pad = span > 0 ? span * 0.12 : Math.max(Math.abs(hi) * 0.1, 1);
+  lo = Math.max(0, lo - pad);
+  hi += pad;
+  return [lo, hi];
+}
+
+function near(a, b) {
+  return Math.abs(a - b) <= Math.max(1e-6, 1e-9 * Math.max(Math.abs(a), Math.abs(b)));
+}
+
+export function isChosen(member, request) {
+  const chosen = (request.coalition || []).map((a) => a.robot).sort();
+  if (chosen.length) {
+    const robots = [...member.robots].sort();
+    return robots.length === chosen.length && robots.every((r, i) => r === chosen[i]);
+  }
+  return request.time !== null && request.cost !== null
+    && near(member.time, request.time) && near(member.cost, request.cost);
+}
+
+export function drawFront(request) {
+  const front = request.pareto || [];
+  const plot = svg("svg", {
+    viewBox: `0 0 ${W} ${H}`, role: "img", class: "front-plot",
+    "aria-label": `Pareto front: ${front.length} coalition${front.length === 1 ? "" : "s"}, time against cost`,
+  });
+  const [t0, t1] = domain(front.map((m) => m.time));
+  const [c0, c1] = domain(front.map((m) => m.cost));
+  const x = (t) => M.left + ((t - t0) / (t1 - t0)) * (W - M.left - M.right);
+  const y = (c) => H - M.bottom - ((c - c0) / (c1 - c0)) * (H - M.top - M.bottom);
+
+  const axis = svg("g", { class: "axis" });
+  const costDigits = c1 - c0 < 10 ? 1 : 0;
+  for (const t of ticks(t0, t1, 4)) {
+    axis.append(svg("line", { class: "gridline", x1: x(t), x2: x(t), y1: M.top, y2: H - M.bottom }));
+    axis.append(svg("text", { x: x(t), y: H - M.bottom + 13, "text-anchor": "middle", text: fmtNumber(t) }));
+  }
+  for (const c of ticks(c0, c1, 4)) {
+    axis.append(svg("line", { class: "gridline", x1: M.left, x2: W - M.right, y1: y(c), y2: y(c) }));
+    axis.append(svg("text", { x: M.left - 5, y: y(c) + 3.5, "text-anchor": "end", text: fmtNumber(c, costDigits) }));
+  }
+  axis.append(svg("path", { d: `M${M.left} ${M.top} V${H - M.bottom} H${W - M.right}`, fill: "none" }));
+  axis.append(svg("text", { class: "axis-title", x: (M.left + W - M.right) / 2, y: H - 4, "text-anchor": "middle", text: "time (s)" }));
+  axis.append(svg("text", { class: "axis-title", x: 11, y: (M.top + H - M.bottom) / 2, "text-anchor": "middle",
+    transform: `rotate(-90 11 ${(M.top + H - M.bottom) / 2})`, text: "cost" }));
+  plot.append(axis);
+
+  // The biggest first, so a small coalition is never hidden under a big one.
+  const members = [...front].sort((a, b) => b.size - a.size);
+  let chosenPoint = null;
+  for (const member of members) {
+    const chosen = isChosen(member, request);
+    const point = svg("circle", {
+      class: chosen ? "point chosen" : "point", cx: x(member.time).toFixed(1), cy: y(member.cost).toFixed(1),
+      r: radiusFor(member.size), "data-size": member.size, "data-time": member.time, "data-cost": member.cost,
+    }, svg("title", { text: `${member.size} robot${member.size === 1 ? "" : "s"} (${member.robots.join(", ")}): `
+      + `time ${fmtNumber(member.time)} s, cost ${fmtNumber(member.cost, 2)}${chosen ? ", chosen" : ""}` }));
+    plot.append(point);
+    if (chosen) chosenPoint = { member, cx: x(member.time), cy: y(member.cost) };
+  }
+  if (chosenPoint) {
+    const { member, cx, cy } = chosenPoint;
+    const r = radiusFor(member.size) + 4;
+    plot.append(svg("circle", { class: "chosen-ring", cx, cy, r }));
+    const right = cx < W - 90;
+    plot.append(svg("text", { class: "chosen-label", x: right ? cx + r + 4 : cx - r - 4, y: cy + 4,
+      "text-anchor": right ? "start" : "end", text: "chosen" }));
+  }
+  return plot;
+}

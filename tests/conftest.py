@@ -1,0 +1,61 @@
+"""Fixtures shared by every test folder: a PostgreSQL database made for the session.
+
+PostgreSQL tests run in a database made for this session
+(``robocloud_test_<hex>``, dropped at the end) on the server of
+``ROBOCLOUD_TEST_POSTGRES_URL`` (default: postgres on 127.0.0.1:5432, database
+``test``). If that server is down they fail, never skip: CI must run them.
+"""
+
+from __future__ import annotations
+
+import os
+import secrets
+from collections.abc import Iterator
+
+import pytest
+from sqlalchemy import Engine, create_engine, text
+from sqlalchemy.exc import DBAPIError
+
+from robocloud.storage.sql import database_url
+
+POSTGRES_ADMIN_URL = os.environ.get(
+    "ROBOCLOUD_TEST_POSTGRES_URL", "postgresql+psycopg://postgres@127.0.0.1:5432/test"
+)
+
+
+@pytest.fixture(scope="session")
+def postgres_admin() -> Iterator[Engine]:
+    engine = create_engine(
+        database_url(POSTGRES_ADMIN_URL),
+        isolation_level="AUTOCOMMIT",
+        connect_args={"connect_timeout": 5},
+    )
+    try:
+        with engine.connect() as conn:
+            conn.execute(text("SELECT 1"))
+    except DBAPIError as error:
+        engine.dispose()
+        cause = str(error.orig).strip().splitlines()[0]
+        pytest.fail(
+            f"PostgreSQL is not reachable at {POSTGRES_ADMIN_URL} ({cause}). The storage "
+            "tests must run against it: start it (pg_ctlcluster --skip-systemctl-redirect "
+            "15 main start) or point ROBOCLOUD_TEST_POSTGRES_URL at a server.",
+            pytrace=False,
+        )
+    yield engine
+    engine.dispose()
+
+
+@pytest.fixture(scope="session")
+def postgres_url(postgres_admin: Engine) -> Iterator[str]:
+    """A fresh database for this test session, dropped at its end."""
+    name = f"robocloud_test_{secrets.token_hex(6)}"
+    with postgres_admin.connect() as conn:
+        conn.execute(text(f'CREATE DATABASE "{name}"'))
+    try:
+        yield postgres_admin.url.set(database=name).render_as_string(hide_password=False)
+    finally:
+        with postgres_admin.connect() as conn:
+            conn.execute(text(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)'))
+
+

@@ -1,0 +1,81 @@
+import pytest
+
+from robocloud.domain import Capability, Robot
+from robocloud.errors import NotFound
+from robocloud.fleet import Assign, MemoryRobotLink, RobotLink, State
+
+
+def robot(robot_id: str, x: float = 0.0, **changes: object) -> Robot:
+    fields: dict[str, object] = {
+        "id": robot_id, "cloud": "cloud-a", "position": [x, 0.0], "speed": 2.0,
+        "battery": 80.0, "status": "idle", "travel_cost_per_m": 0.05,
+        "capabilities": {"grabber": Capability(kind="actuating", time=60.0, cost=8.0)},
+    }
+    fields.update(changes)
+    return Robot.model_validate(fields)
+
+
+class Clock:
+    def __init__(self) -> None:
+        self.now = 100.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+GO = Assign(request_id="r-1", location=[100.0, 0.0], capabilities=["grabber"])
+
+
+def test_it_is_a_robot_link() -> None:
+    link: RobotLink = MemoryRobotLink("cloud-a", [robot("a-1")])
+    assert [r.id for r in link.robots()] == ["a-1"]
+
+
+def test_an_assigned_robot_travels_works_and_ends_idle_there() -> None:
+    link = MemoryRobotLink("cloud-a", [robot("a-1"), robot("a-2", x=5.0)])
+    seen: list[State] = []
+    link.on_state(seen.append)
+    assert link.assign("a-1", GO).ok
+    assert link.commands == [("a-1", GO)]
+    link.step(25.0)  # half of the 50 s drive
+    state = link.states()["a-1"]
+    assert state.status == "busy" and state.task is not None
+    assert (state.task.phase, state.position) == ("travel", [50.0, 0.0])
+    assert state.task.progress == pytest.approx(25.0 / 110.0)
+    link.step(50.0)
+    assert link.states()["a-1"].task.phase == "work"  # type: ignore[union-attr]
+    link.step(60.0)
+    done = link.states()["a-1"]
+    assert done.status == "idle" and done.position == [100.0, 0.0]
+    assert done.task is not None and (done.task.phase, done.task.progress) == ("done", 1.0)
+    assert done.battery == pytest.approx(80.0 - 1.0 - 1.2)
+    link.step(1.0)
+    assert link.states()["a-1"].task is None
+    phases = [s.task.phase if s.task else None for s in seen if s.id == "a-1"]
+    assert phases == ["travel", "travel", "work", "done", None]
+
+
+def test_refusals_cancel_and_faults() -> None:
+    clock = Clock()
+    link = MemoryRobotLink("cloud-a", [robot("a-1"), robot("a-2")], offline_after=5.0,
+                           clock=clock)
+    assert link.assign("a-1", GO).ok
+    busy = link.assign("a-1", GO.model_copy(update={"request_id": "r-2"}))
+    assert not busy.ok and busy.error == "robot a-1 is busy with request r-1."
+    assert link.cancel("a-1", "r-1").ok
+    assert link.states()["a-1"].status == "idle" and link.states()["a-1"].task is None
+    assert link.cancel("a-1", "r-1").ok  # nothing to stop: still ok
+
+    assert link.assign("a-2", GO).ok
+    failed = link.fail("a-2")
+    assert failed.status == "offline" and failed.task is not None
+    assert failed.task.phase == "failed"
+
+    link.silence("a-1")
+    assert link.assign("a-1", GO).error == "robot a-1 did not answer."
+    clock.now += 6.0
+    assert {r.id: r.status for r in link.robots()} == {"a-1": "offline", "a-2": "offline"}
+    link.recover("a-1")
+    assert link.robots()[0].status == "idle"
+    with pytest.raises(NotFound):
+        link.silence("a-9")

@@ -1,0 +1,173 @@
+"""ZenohRobotLink against hand-written robots on a real loopback Zenoh network."""
+
+import json
+import threading
+import time
+from collections.abc import Callable, Iterator
+
+import pytest
+import zenoh
+from fleet_testing import free_endpoint, wait_until
+
+from robocloud.errors import InvalidInput
+from robocloud.fleet import (
+    Ack,
+    Assign,
+    State,
+    ZenohRobotLink,
+    keys,
+    open_client,
+    open_router,
+    wait_for_liveliness,
+)
+
+GO = Assign(request_id="r-1", location=[10.0, 0.0], capabilities=["grabber"])
+
+
+def state(robot_id: str = "a-0001", seq: int = 1, **changes: object) -> bytes:
+    fields: dict[str, object] = {
+        "id": robot_id, "cloud": "cloud-a", "kind": "tribot", "position": [0.0, 0.0],
+        "speed": 1.0, "battery": 90.0, "status": "idle", "travel_cost_per_m": 0.05,
+        "capabilities": {"grabber": {"kind": "actuating", "time": 60.0, "cost": 8.0}},
+        "task": None, "seq": seq, "sent_at": 1000.0 + seq,
+    }
+    fields.update(changes)
+    return json.dumps(fields).encode()
+
+
+@pytest.fixture(scope="module")
+def network() -> Iterator[tuple[zenoh.Session, zenoh.Session]]:
+    endpoint = free_endpoint()
+    router = open_router([endpoint])
+    client = open_client([endpoint])
+    yield router, client
+    client.close()  # type: ignore[no-untyped-call]
+    router.close()  # type: ignore[no-untyped-call]
+
+
+class Clock:
+    def __init__(self) -> None:
+        self.now = 0.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def test_the_link_keeps_the_latest_valid_state_of_each_robot(
+    network: tuple[zenoh.Session, zenoh.Session],
+) -> None:
+    router, client = network
+    clock = Clock()
+    with ZenohRobotLink(router, "cloud-a", offline_after=5.0, clock=clock) as link:
+        heard: list[State] = []
+        stop = link.on_state(heard.append)
+        time.sleep(0.1)  # the subscription reaches the client
+        put = client.put
+        put(keys.state_key("cloud-a", "a-0001"), state(seq=2))
+        put(keys.state_key("cloud-a", "a-0001"), state(seq=1, battery=10.0))  # older: ignored
+        put(keys.state_key("cloud-a", "a-0002"), state("a-0003"))  # wrong key: ignored
+        put(keys.state_key("cloud-a", "a-0004"), b"{not json")
+        put(keys.state_key("cloud-b", "a-0005"), state("a-0005"))  # another cloud
+        put(keys.state_key("cloud-a", "a-0006"), state("a-0006", cloud="cloud-b"))
+        put(keys.state_key("cloud-a", "a-0007"), state("a-0007", seq=5))
+        assert wait_until(lambda: "a-0007" in link.states())
+        assert sorted(link.states()) == ["a-0001", "a-0007"]
+        assert link.states()["a-0001"].battery == 90.0
+        assert [s.id for s in heard] == ["a-0001", "a-0007"]
+        stop()
+
+        clock.now = 4.0
+        put(keys.state_key("cloud-a", "a-0007"), state("a-0007", seq=6, status="busy"))
+        assert wait_until(lambda: link.states()["a-0007"].seq == 6)
+        clock.now = 6.0
+        assert {r.id: r.status for r in link.robots()} == {"a-0001": "offline", "a-0007": "busy"}
+        assert link.ages() == {"a-0001": 6.0, "a-0007": 2.0}
+        assert len(heard) == 2  # the listener was removed
+
+
+def test_commands_reach_the_robot_and_come_back_as_acks(
+    network: tuple[zenoh.Session, zenoh.Session],
+) -> None:
+    router, client = network
+    received: list[dict[str, object]] = []
+    held: list[zenoh.Query] = []
+
+    def robot(query: zenoh.Query) -> None:
+        robot_id = keys.robot_of(str(query.key_expr))
+        assert query.payload is not None
+        received.append(json.loads(query.payload.to_bytes()))
+        key = keys.cmd_key("cloud-b", str(robot_id))
+        answers: dict[str, Callable[[], None]] = {
+            "b-ok": lambda: query.reply(key, Ack(ok=True, robot="b-ok",
+                                                  request_id="r-1").model_dump_json()),
+            "b-junk": lambda: query.reply(key, b"[1, 2]"),
+            "b-err": lambda: query.reply_err(b"overheated"),
+            "b-mute": lambda: None,
+        }
+        if robot_id == "b-slow":
+            held.append(query)  # never answered, never finalised: the get times out
+            return
+        with query:
+            answers[str(robot_id)]()
+
+    queryable = client.declare_queryable(keys.all_cmds("cloud-b"), robot)
+    token = client.liveliness().declare_token(keys.sim_token("cloud-b", 1))
+    try:
+        assert wait_for_liveliness(router, keys.all_sim_tokens("cloud-b"), 2.0)
+        link = ZenohRobotLink(router, "cloud-b", command_timeout=0.3)
+        assert link.assign("b-ok", GO) == Ack(ok=True, robot="b-ok", request_id="r-1")
+        assert received[-1] == json.loads(GO.model_dump_json())
+        assert link.cancel("b-ok", "r-1").ok
+        assert received[-1] == {"type": "cancel", "request_id": "r-1"}
+        junk = link.assign("b-junk", GO)
+        assert junk.error == "robot b-junk answered something that is not an Ack."
+        assert link.assign("b-err", GO).error == "robot b-err answered an error: overheated"
+        assert link.assign("b-mute", GO).error == "robot b-mute did not answer."
+        started = time.monotonic()
+        slow = link.assign("b-slow", GO)
+        assert not slow.ok and slow.error == "robot b-slow did not answer."
+        assert 0.25 < time.monotonic() - started < 2.0
+        link.close()
+    finally:
+        for query in held:
+            query.drop()  # type: ignore[no-untyped-call]
+        token.undeclare()  # type: ignore[no-untyped-call]
+        queryable.undeclare()  # type: ignore[no-untyped-call]
+
+
+def test_a_command_to_nobody_is_not_answered_at_once(
+    network: tuple[zenoh.Session, zenoh.Session],
+) -> None:
+    router, _ = network
+    link = ZenohRobotLink(router, "cloud-c", command_timeout=5.0)
+    started = time.monotonic()
+    assert link.assign("c-0001", GO).error == "robot c-0001 did not answer."
+    assert time.monotonic() - started < 1.0  # no route: Zenoh ends the query at once
+    link.close()
+
+
+def test_liveliness_wait_and_session_errors(
+    network: tuple[zenoh.Session, zenoh.Session],
+) -> None:
+    router, client = network
+    assert not wait_for_liveliness(router, keys.all_sim_tokens("cloud-z"), 0.2)
+    later = threading.Timer(
+        0.2, lambda: tokens.append(client.liveliness().declare_token("robocloud/cloud-z/sim/7"))
+    )
+    tokens: list[zenoh.LivelinessToken] = []
+    later.start()
+    assert wait_for_liveliness(router, keys.all_sim_tokens("cloud-z"), 3.0)
+    later.join()
+    tokens[0].undeclare()  # type: ignore[no-untyped-call]
+
+    closed = free_endpoint()
+    with pytest.raises(InvalidInput, match=r"cannot open a Zenoh session on tcp/127\.0\.0\.1:"):
+        open_client([closed])
+    started = time.monotonic()
+    with pytest.raises(InvalidInput):
+        open_client([closed], timeout=0.5)
+    assert time.monotonic() - started >= 0.5
+    with pytest.raises(InvalidInput, match="cannot open"):
+        open_client(["nonsense"])
+    with pytest.raises(InvalidInput):
+        open_router([])

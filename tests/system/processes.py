@@ -1,0 +1,195 @@
+"""Real robocloud processes on loopback for system tests: IaaS, simulator, their logs."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import httpx
+
+API_KEY = "test-key"
+HEADERS = {"Authorization": f"Bearer {API_KEY}"}
+
+
+def free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port: int = sock.getsockname()[1]
+    return port
+
+
+def wait_until(predicate: Callable[[], Any], timeout: float, what: str, every: float = 0.05) -> Any:
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            value = predicate()
+        except httpx.TransportError:
+            value = None
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+        time.sleep(every)
+
+
+@dataclass
+class Cloud:
+    """One cloud: its IaaS process and its simulator process."""
+
+    name: str
+    workdir: Path
+    store_url: str
+    robots: int
+    speedup: float
+    http_port: int = field(default_factory=free_port)
+    zenoh_port: int = field(default_factory=free_port)
+    seed: int = 0
+    churn: bool = False
+    peers: list[str] = field(default_factory=list)  # other clouds' Zenoh endpoints
+    iaas: subprocess.Popen[bytes] | None = None
+    sim: subprocess.Popen[bytes] | None = None
+
+    @property
+    def url(self) -> str:
+        return f"http://127.0.0.1:{self.http_port}"
+
+    @property
+    def zenoh(self) -> str:
+        return f"tcp/127.0.0.1:{self.zenoh_port}"
+
+    def client(self) -> httpx.Client:
+        return httpx.Client(base_url=self.url, headers=HEADERS, timeout=10.0)
+
+    def start_iaas(self) -> None:
+        log = open(self.workdir / f"{self.name}-iaas.log", "ab")  # noqa: SIM115
+        env = {**os.environ, "ROBOCLOUD_API_KEYS": f"tests={API_KEY}"}
+        self.iaas = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "robocloud.cli.main",
+                "iaas",
+                "--cloud",
+                self.name,
+                "--listen",
+                f"127.0.0.1:{self.http_port}",
+                "--zenoh",
+                self.zenoh,
+                "--store",
+                self.store_url,
+                "--time-scale",
+                str(self.speedup),
+                "--log-level",
+                "warning",
+                *[arg for peer in self.peers for arg in ("--peer", peer)],
+            ],
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            cwd=self.workdir,
+            env=env,
+        )
+        wait_until(
+            lambda: httpx.get(f"{self.url}/healthz", timeout=1).status_code == 200,
+            20,
+            f"{self.name}'s IaaS to answer",
+        )
+
+    def start_sim(self) -> None:
+        if self.robots == 0:
+            return
+        log = open(self.workdir / f"{self.name}-sim.log", "ab")  # noqa: SIM115
+        command = [
+            sys.executable,
+            "-m",
+            "robocloud.cli.main",
+            "sim",
+            "--cloud",
+            self.name,
+            "--robots",
+            str(self.robots),
+            "--connect",
+            self.zenoh,
+            "--speedup",
+            str(self.speedup),
+            "--seed",
+            str(self.seed),
+        ]
+        if not self.churn:
+            command.append("--no-churn")
+        self.sim = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT, cwd=self.workdir)
+
+    def wait_for_robots(self, count: int | None = None, timeout: float = 20) -> None:
+        count = self.robots if count is None else count
+        with self.client() as client:
+            wait_until(
+                lambda: len(client.get("/v1/robots").json()) >= count,
+                timeout,
+                f"{count} robots of {self.name} to report",
+            )
+
+    def start(self) -> Cloud:
+        self.start_iaas()
+        self.start_sim()
+        self.wait_for_robots()
+        return self
+
+    def kill_iaas(self) -> None:
+        assert self.iaas is not None
+        self.iaas.send_signal(signal.SIGKILL)
+        self.iaas.wait(10)
+
+    def stop(self) -> None:
+        for process in (self.sim, self.iaas):
+            if process is not None and process.poll() is None:
+                process.terminate()
+        for process in (self.sim, self.iaas):
+            if process is not None:
+                try:
+                    process.wait(10)
+                except subprocess.TimeoutExpired:
+                    process.kill()
+                    process.wait(5)
+
+    def fault(self, robot: str, fault: str) -> dict[str, Any]:
+        """Inject a fault into a simulated robot over the cloud's Zenoh router."""
+        from robocloud.fleet import open_client
+
+        session = open_client([self.zenoh], timeout=5.0)
+        try:
+            payload = json.dumps({"fault": fault, "robot": robot})
+            for _ in range(50):
+                replies = list(
+                    session.get(f"robocloud/{self.name}/sim/control", payload=payload, timeout=2.0)
+                )
+                oks = [r.ok for r in replies if r.ok is not None]
+                if oks:
+                    answer: dict[str, Any] = json.loads(oks[0].payload.to_string())
+                    return answer
+                time.sleep(0.1)  # routes not known yet
+            raise AssertionError("the simulator did not answer the fault")
+        finally:
+            session.close()
+
+
+def follow(
+    client: httpx.Client,
+    request_id: str,
+    until: Callable[[dict[str, Any]], bool],
+    timeout: float,
+    what: str,
+) -> dict[str, Any]:
+    def check() -> dict[str, Any] | None:
+        body: dict[str, Any] = client.get(f"/v1/requests/{request_id}").json()
+        return body if until(body) else None
+
+    result: dict[str, Any] = wait_until(check, timeout, what, every=0.1)
+    return result

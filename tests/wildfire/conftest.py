@@ -1,0 +1,68 @@
+"""Fixtures of the browser tests: the real system, Debian's chromium driven by Playwright.
+
+Playwright's own browser download cannot work here, so it launches the system
+chromium (``/usr/bin/chromium``; ``tests/wildfire/ensure_chromium.sh`` installs
+it). Without it the tests fail, never skip: CI must run them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from wildfire_browser import Console, open_page
+from wildfire_system import CHROMIUM, CHROMIUM_ARGS, System
+
+
+@pytest.fixture(scope="module")
+def system(tmp_path_factory: pytest.TempPathFactory) -> Iterator[System]:
+    # Three clouds in a federation, the page at the first: it sees every robot.
+    the_system = System(tmp_path_factory.mktemp("wildfire-system"), clouds=3, robots=20)
+    try:
+        yield the_system.start()
+    finally:
+        the_system.stop()
+
+
+@pytest.fixture(scope="module")
+def browser() -> Iterator[Any]:
+    if not Path(CHROMIUM).exists():
+        pytest.fail(f"{CHROMIUM} is missing: run tests/wildfire/ensure_chromium.sh "
+                    "(make test does).", pytrace=False)
+    from playwright.sync_api import sync_playwright
+
+    playwright = sync_playwright().start()
+    try:
+        the_browser = playwright.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+        try:
+            yield the_browser
+        finally:
+            the_browser.close()
+    finally:
+        playwright.stop()
+
+
+@pytest.fixture(scope="session")
+def screenshots(request: pytest.FixtureRequest) -> Path:
+    folder = Path(request.config.rootpath) / "test-output" / "wildfire"
+    folder.mkdir(parents=True, exist_ok=True)
+    return folder
+
+
+@pytest.fixture
+def console() -> Console:
+    return Console()
+
+
+@pytest.fixture
+def page(browser: Any, system: System, console: Console, screenshots: Path,
+         request: pytest.FixtureRequest) -> Iterator[Any]:
+    yield from open_page(browser, system, console, screenshots, request.node.name)
+
+
+@pytest.fixture
+def phone_page(browser: Any, system: System, console: Console, screenshots: Path,
+               request: pytest.FixtureRequest) -> Iterator[Any]:
+    yield from open_page(browser, system, console, screenshots, request.node.name, 390, 844)

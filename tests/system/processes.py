@@ -55,6 +55,8 @@ class Cloud:
     seed: int = 0
     churn: bool = False
     peers: list[str] = field(default_factory=list)  # other clouds' Zenoh endpoints
+    iaas_args: list[str] = field(default_factory=list)  # more flags for `robocloud iaas`
+    sim_args: list[str] = field(default_factory=list)  # more flags for `robocloud sim`
     iaas: subprocess.Popen[bytes] | None = None
     sim: subprocess.Popen[bytes] | None = None
 
@@ -91,6 +93,7 @@ class Cloud:
                 "--log-level",
                 "warning",
                 *[arg for peer in self.peers for arg in ("--peer", peer)],
+                *self.iaas_args,
             ],
             stdout=log,
             stderr=subprocess.STDOUT,
@@ -125,6 +128,7 @@ class Cloud:
         ]
         if not self.churn:
             command.append("--no-churn")
+        command += self.sim_args
         self.sim = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT, cwd=self.workdir)
 
     def wait_for_robots(self, count: int | None = None, timeout: float = 20) -> None:

@@ -6,6 +6,7 @@ import argparse
 import logging
 
 from robocloud.errors import InvalidInput
+from robocloud.federation import security
 
 
 def endpoint(text: str) -> tuple[str, int]:
@@ -77,6 +78,7 @@ def add_iaas_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--log-level", default="info", choices=("debug", "info", "warning", "error")
     )
+    security.add_arguments(parser, router=True)
 
 
 def iaas_command(args: argparse.Namespace) -> int:
@@ -100,6 +102,7 @@ def iaas_command(args: argparse.Namespace) -> int:
         optimizer=args.optimizer,
         offline_after=args.offline_after,
         time_scale=args.time_scale,
+        overlay_security=security.from_arguments(args),
     )
     if settings.store_url.startswith("sqlite:///"):
         from pathlib import Path

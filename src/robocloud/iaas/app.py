@@ -93,7 +93,12 @@ def create_app(
             if the_link is None:
                 from robocloud.fleet import ZenohRobotLink, open_router
 
-                session = open_router(list(settings.zenoh_listen), list(settings.zenoh_peers))
+                security = settings.overlay_security
+                session = open_router(
+                    list(settings.zenoh_listen),
+                    list(settings.zenoh_peers),
+                    security.for_cloud(settings.cloud, settings.trusted) if security else None,
+                )
                 stack.callback(session.close)
                 the_link = ZenohRobotLink(
                     session, settings.cloud, offline_after=settings.offline_after

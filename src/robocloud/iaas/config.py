@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from robocloud.errors import InvalidInput
+from robocloud.federation.security import OverlaySecurity
 
 API_KEYS_ENV = "ROBOCLOUD_API_KEYS"
 
@@ -63,6 +64,9 @@ class Settings:
     trusted: tuple[str, ...] = ()
     gather_timeout: float = 0.5
     federation: bool = True
+    # TLS, logins and access control on the overlay (docs/security.md); None:
+    # plain TCP, for one machine.
+    overlay_security: OverlaySecurity | None = None
 
     def __post_init__(self) -> None:
         if not self.store_url:

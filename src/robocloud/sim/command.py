@@ -18,6 +18,7 @@ import threading
 from collections.abc import Sequence
 
 from robocloud.errors import RoboCloudError
+from robocloud.federation import security
 from robocloud.sim.fleet import run_simulator
 
 
@@ -54,6 +55,7 @@ def add_sim_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="SECONDS",
         help="how long to wait for the router (default 10)",
     )
+    security.add_arguments(parser, router=False)
 
 
 def sim_command(args: argparse.Namespace) -> int:
@@ -74,6 +76,7 @@ def sim_command(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace, stop: threading.Event) -> int:
+    overlay_security = security.from_arguments(args)  # bad flags: an error before anything runs
     print(
         f"simulating {args.robots} robots of {args.cloud} at speedup {args.speedup:g},"
         f" connecting to {', '.join(args.connect)}; Ctrl-C stops",
@@ -89,6 +92,7 @@ def _run(args: argparse.Namespace, stop: threading.Event) -> int:
         stop_event=stop,
         churn=args.churn,
         connect_timeout=args.connect_timeout,
+        security=overlay_security,
     )
     return 0
 

@@ -31,7 +31,7 @@ from robocloud.domain import Robot
 from robocloud.errors import InvalidInput, describe_validation_errors
 from robocloud.fleet import keys
 from robocloud.fleet.messages import COMMAND, Ack, Assign, Cancel, State
-from robocloud.fleet.zenoh_session import open_client
+from robocloud.fleet.zenoh_session import SessionSecurity, open_client
 from robocloud.sim.churn import Churn
 from robocloud.sim.control import Fault, FaultName
 from robocloud.sim.robot import SimRobot
@@ -278,15 +278,17 @@ def run_simulator(
     *,
     churn: bool = True,
     connect_timeout: float = 10.0,
+    security: SessionSecurity | None = None,
 ) -> None:
     """Simulate ``n_robots`` robots of ``cloud`` connected to the router at ``connect``.
 
     Runs until ``stop_event`` is set (forever without one). Waits up to
-    ``connect_timeout`` seconds for the router.
+    ``connect_timeout`` seconds for the router. ``security``: TLS or a login
+    (``robocloud.federation.security.OverlaySecurity``), as the router asks.
     """
     robots = cloud_robots(cloud, n_robots, seed)
     stop = stop_event or threading.Event()
-    session = open_client(connect, timeout=connect_timeout)
+    session = open_client(connect, timeout=connect_timeout, security=security)
     try:
         with FleetSimulator(cloud, robots, session, speedup=speedup, seed=seed, churn=churn):
             stop.wait()

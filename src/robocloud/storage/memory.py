@@ -30,6 +30,7 @@ class MemoryRequestStore:
     def __init__(self, clock: rules.Clock | None = None) -> None:
         self._clock = rules.StoreClock(clock)
         self._lock = threading.RLock()
+        self.local_reads = True
         # Stored as JSON text, like the SQL store, so callers never share a dict
         # with the store and both stores refuse the same values.
         self._requests: dict[str, tuple[RequestRecord, str, str | None]] = {}
@@ -117,10 +118,7 @@ class MemoryRequestStore:
         detail: str | None = None,
         selection: dict[str, Any] | None = None,
     ) -> RequestRecord:
-        rules.check_state(new_state, "new_state")
-        rules.check_text(reason, "reason")
-        rules.check_text(detail, "detail")
-        selection_text = None if selection is None else rules.dump_json(selection, "selection")
+        selection_text = rules.check_transition(new_state, reason, detail, selection)
         with self._lock:
             record, task_text, old_selection = self._stored(request_id)
             rules.check_move(request_id, record.state, new_state)

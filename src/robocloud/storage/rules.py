@@ -94,6 +94,19 @@ def check_state(state: str, field: str = "state") -> str:
     return state
 
 
+def check_transition(
+    new_state: str,
+    reason: str | None,
+    detail: str | None,
+    selection: dict[str, Any] | None,
+) -> str | None:
+    """Check the arguments of ``RequestStore.transition``; the selection as JSON text."""
+    check_state(new_state, "new_state")
+    check_text(reason, "reason")
+    check_text(detail, "detail")
+    return None if selection is None else dump_json(selection, "selection")
+
+
 def check_limit(limit: int) -> int:
     if isinstance(limit, bool) or not isinstance(limit, int) or not 1 <= limit <= MAX_PAGE:
         raise InvalidInput(

@@ -106,6 +106,7 @@ class SqlRequestStore:
         self.url = self._url.render_as_string(hide_password=True)
         self._clock = rules.StoreClock(clock)
         self._sqlite = self._url.get_backend_name() == "sqlite"
+        self.local_reads = self._sqlite  # WAL: readers never wait for the writer
         # One writer at a time inside this process: SQLite serializes writers
         # anyway, and waiting on a lock is faster than its busy-retry sleeps.
         self._write_lock: threading.Lock | None = threading.Lock() if self._sqlite else None
@@ -230,10 +231,7 @@ class SqlRequestStore:
         detail: str | None = None,
         selection: dict[str, Any] | None = None,
     ) -> RequestRecord:
-        rules.check_state(new_state, "new_state")
-        rules.check_text(reason, "reason")
-        rules.check_text(detail, "detail")
-        selection_text = None if selection is None else rules.dump_json(selection, "selection")
+        selection_text = rules.check_transition(new_state, reason, detail, selection)
 
         def work(conn: Connection) -> RequestRecord:
             current = self._lock(conn, request_id)

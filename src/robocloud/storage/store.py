@@ -28,7 +28,13 @@ class RequestStore(Protocol):
 
     Errors: ``InvalidInput`` (a bad argument), ``NotFound`` (no such request),
     ``Conflict`` (a move the request's state does not allow), ``StoreUnavailable``.
+
+    ``local_reads``: reads are local (a file or memory) and take well under a
+    millisecond, so a caller on an event loop may make them in place rather
+    than on a worker thread, whose hand-offs cost more than the read.
     """
+
+    local_reads: bool
 
     def create_request(
         self,

@@ -197,3 +197,24 @@ def follow(
 
     result: dict[str, Any] = wait_until(check, timeout, what, every=0.1)
     return result
+
+
+def grabber_task(client: httpx.Client) -> tuple[dict[str, Any], set[str]]:
+    """A task that needs every idle grabber the federation shows, and their clouds."""
+    robots = client.get("/v1/robots", params={"scope": "federation"}).json()
+    # Battery 50% or more: enough for any trip across the forest and back to work.
+    grabbers = [
+        r
+        for r in robots
+        if r["status"] == "idle" and "grabber" in r["capabilities"] and r["battery"] >= 50.0
+    ]
+    task = {
+        "location": [1000.0, 1000.0],
+        "actuating": {"grabber": len(grabbers)},
+        "max_robots": len(grabbers),
+        "max_cost": 100_000.0,
+        "max_time": 100_000.0,
+        "min_battery": 50.0,
+        "priority": "time",
+    }
+    return task, {r["cloud"] for r in grabbers}

@@ -9,7 +9,7 @@ from typing import Any
 
 import httpx
 import pytest
-from processes import HEADERS, Cloud, follow, wait_until
+from processes import HEADERS, Cloud, follow, grabber_task, wait_until
 
 NAMES = ("cloud-a", "cloud-b", "cloud-c")
 
@@ -56,30 +56,11 @@ def federation(tmp_path: Path) -> Iterator[list[Cloud]]:
             cloud.stop()
 
 
-def idle_grabbers(client: httpx.Client) -> list[dict[str, Any]]:
-    robots = client.get("/v1/robots", params={"scope": "federation"}).json()
-    # Battery 50% or more: enough for any trip across the forest and back to work.
-    return [
-        r
-        for r in robots
-        if r["status"] == "idle" and "grabber" in r["capabilities"] and r["battery"] >= 50.0
-    ]
-
-
 def every_grabber_task(client: httpx.Client) -> tuple[dict[str, Any], set[str]]:
     """A task that needs every idle grabber of the federation: all three clouds serve it."""
-    grabbers = idle_grabbers(client)
-    assert {r["cloud"] for r in grabbers} == set(NAMES), "each cloud needs an idle grabber"
-    task = {
-        "location": [1000.0, 1000.0],
-        "actuating": {"grabber": len(grabbers)},
-        "max_robots": len(grabbers),
-        "max_cost": 100_000.0,
-        "max_time": 100_000.0,
-        "min_battery": 50.0,
-        "priority": "time",
-    }
-    return task, {r["cloud"] for r in grabbers}
+    task, clouds = grabber_task(client)
+    assert clouds == set(NAMES), "each cloud needs an idle grabber"
+    return task, clouds
 
 
 def coalition_clouds(request: dict[str, Any]) -> set[str]:

@@ -14,7 +14,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from processes import Cloud, follow, wait_until
+from processes import Cloud, follow, grabber_task, wait_until
 
 from robocloud.federation.security import make_certs
 
@@ -69,22 +69,8 @@ def test_a_request_is_served_across_clouds_over_tls(
             20,
             "both clouds to see each other over TLS",
         )
-        robots = client.get("/v1/robots", params={"scope": "federation"}).json()
-        grabbers = [
-            r
-            for r in robots
-            if r["status"] == "idle" and "grabber" in r["capabilities"] and r["battery"] >= 50.0
-        ]
-        assert {r["cloud"] for r in grabbers} == set(NAMES)
-        task = {
-            "location": [500.0, 500.0],
-            "actuating": {"grabber": len(grabbers)},
-            "max_robots": len(grabbers),
-            "max_cost": 100_000.0,
-            "max_time": 100_000.0,
-            "min_battery": 50.0,
-            "priority": "time",
-        }
+        task, clouds = grabber_task(client)
+        assert clouds == set(NAMES)
         rid = client.post("/v1/requests", json=task).json()["id"]
         done = follow(
             client, rid, lambda r: r["state"] in ("completed", "failed", "rejected"), 90, "done"

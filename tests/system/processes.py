@@ -9,7 +9,7 @@ import socket
 import subprocess
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -182,6 +182,51 @@ class Cloud:
             raise AssertionError("the simulator did not answer the fault")
         finally:
             session.close()
+
+
+def start_clouds(
+    tmp_path: Path,
+    names: Sequence[str],
+    robots: int,
+    speedup: float,
+    *,
+    chain: bool = False,
+    iaas_args: Callable[[str], list[str]] = lambda name: [],
+    sim_args: Callable[[str], list[str]] = lambda name: [],
+) -> list[Cloud]:
+    """Start one cloud per name, joined, and wait until the first sees them all.
+
+    Full mesh, or a chain: a <- b <- c (c reaches a only through b). Each
+    cloud's extra flags come from ``iaas_args(name)`` and ``sim_args(name)``.
+    """
+    clouds: list[Cloud] = []
+    for i, name in enumerate(names):
+        cloud = Cloud(
+            name,
+            tmp_path,
+            f"sqlite:///{tmp_path / f'{name}.db'}",
+            robots=robots,
+            speedup=speedup,
+            seed=i,
+            iaas_args=iaas_args(name),
+            sim_args=sim_args(name),
+        )
+        cloud.peers = [clouds[-1].zenoh] if chain and clouds else [c.zenoh for c in clouds]
+        clouds.append(cloud)
+    try:
+        for cloud in clouds:
+            cloud.start()
+        with clouds[0].client() as client:
+            wait_until(
+                lambda: [c["cloud"] for c in client.get("/v1/clouds").json()] == sorted(names),
+                20,
+                f"{len(names)} clouds in the federation",
+            )
+    except BaseException:
+        for cloud in clouds:
+            cloud.stop()
+        raise
+    return clouds
 
 
 def follow(

@@ -9,7 +9,7 @@ from typing import Any
 
 import httpx
 import pytest
-from processes import HEADERS, Cloud, follow, grabber_task, wait_until
+from processes import HEADERS, Cloud, follow, grabber_task, start_clouds, wait_until
 
 NAMES = ("cloud-a", "cloud-b", "cloud-c")
 
@@ -17,33 +17,7 @@ NAMES = ("cloud-a", "cloud-b", "cloud-c")
 def start_federation(
     tmp_path: Path, robots: int, speedup: float, chain: bool = False
 ) -> list[Cloud]:
-    clouds: list[Cloud] = []
-    for i, name in enumerate(NAMES):
-        cloud = Cloud(
-            name,
-            tmp_path,
-            f"sqlite:///{tmp_path / f'{name}.db'}",
-            robots=robots,
-            speedup=speedup,
-            seed=i,
-        )
-        # Full mesh, or a chain: a <- b <- c (c reaches a only through b).
-        cloud.peers = [clouds[-1].zenoh] if chain and clouds else [c.zenoh for c in clouds]
-        clouds.append(cloud)
-    try:
-        for cloud in clouds:
-            cloud.start()
-        with clouds[0].client() as client:
-            wait_until(
-                lambda: len(client.get("/v1/clouds").json()) == 3,
-                20,
-                "three clouds in the federation",
-            )
-    except BaseException:
-        for cloud in clouds:
-            cloud.stop()
-        raise
-    return clouds
+    return start_clouds(tmp_path, NAMES, robots, speedup, chain=chain)
 
 
 @pytest.fixture

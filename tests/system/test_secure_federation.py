@@ -14,7 +14,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from processes import Cloud, follow, grabber_task, wait_until
+from processes import Cloud, follow, grabber_task, start_clouds
 
 from robocloud.federation.security import make_certs
 
@@ -36,23 +36,16 @@ def tls_flags(certs: Path, name: str) -> list[str]:
 def secure_federation(tmp_path: Path) -> Iterator[tuple[list[Cloud], Path]]:
     certs = tmp_path / "certs"
     make_certs(certs, [*NAMES, *(f"{n}-robots" for n in NAMES)])
-    clouds: list[Cloud] = []
-    for i, name in enumerate(NAMES):
-        cloud = Cloud(
-            name,
-            tmp_path,
-            f"sqlite:///{tmp_path / f'{name}.db'}",
-            robots=20,
-            speedup=50.0,
-            seed=i,
-            iaas_args=[*tls_flags(certs, name), "--trust", NAMES[1 - i]],
-            sim_args=tls_flags(certs, f"{name}-robots"),
-        )
-        cloud.peers = [c.zenoh for c in clouds]
-        clouds.append(cloud)
+    other = dict(zip(NAMES, reversed(NAMES), strict=True))
+    clouds = start_clouds(
+        tmp_path,
+        NAMES,
+        robots=20,
+        speedup=50.0,
+        iaas_args=lambda name: [*tls_flags(certs, name), "--trust", other[name]],
+        sim_args=lambda name: tls_flags(certs, f"{name}-robots"),
+    )
     try:
-        for cloud in clouds:
-            cloud.start()
         yield clouds, certs
     finally:
         for cloud in clouds:
@@ -64,13 +57,8 @@ def test_a_request_is_served_across_clouds_over_tls(
 ) -> None:
     clouds, _ = secure_federation
     with clouds[0].client() as client:
-        wait_until(
-            lambda: [c["cloud"] for c in client.get("/v1/clouds").json()] == list(NAMES),
-            20,
-            "both clouds to see each other over TLS",
-        )
-        task, clouds = grabber_task(client)
-        assert clouds == set(NAMES)
+        task, homes = grabber_task(client)
+        assert homes == set(NAMES)
         rid = client.post("/v1/requests", json=task).json()["id"]
         done = follow(
             client, rid, lambda r: r["state"] in ("completed", "failed", "rejected"), 90, "done"

@@ -152,9 +152,9 @@ BAD_DOCUMENTS = [
     ("wrong type", lambda d: d["robots"][5].update(speed="fast"),
      "robocloud: robots[5].speed: input should be a valid number."),
     ("negative speed", lambda d: d["robots"][3].update(speed=-1.0),
-     "robocloud: robots[3].speed: input should be greater than 0."),
+     "robocloud: robots[3].speed: input should be greater than or equal to 0.001."),
     ("zero speed", lambda d: d["robots"][3].update(speed=0),
-     "robocloud: robots[3].speed: input should be greater than 0."),
+     "robocloud: robots[3].speed: input should be greater than or equal to 0.001."),
     ("bad status", lambda d: d["robots"][0].update(status="asleep"),
      "robocloud: robots[0].status: input should be"),
     ("bad capability", lambda d: d["robots"][1]["capabilities"].update(x={"kind": "flying"}),
@@ -263,7 +263,9 @@ def test_process_bad_input_is_one_sentence(tmp_path: Path,
     done = robocloud_process("select", write(tmp_path, document))
     assert done.returncode == 2
     assert done.stdout == ""
-    assert done.stderr == "robocloud: robots[3].speed: input should be greater than 0.\n"
+    assert done.stderr == (
+        "robocloud: robots[3].speed: input should be greater than or equal to 0.001.\n"
+    )
 
 
 @pytest.mark.parametrize(

@@ -6,10 +6,22 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+# The accepted ranges (docs/model.md). Each keeps every derived number
+# (distances, times t_i, costs c_i and their sums over a fleet) finite, so an
+# absurd but well-formed value is refused where it enters, naming its field.
+MAX_COORDINATE = 1e7  # metres from the origin (10,000 km)
+MIN_SPEED, MAX_SPEED = 0.001, 1000.0  # m/s
+MAX_AMOUNT = 1e9  # a capability's time (s) or cost, a travel cost per metre
+# A name or id: printable, one line. PostgreSQL refuses NUL in text, and a
+# control character in an id would corrupt logs and keys.
+NAME_PATTERN = r"^[^\x00-\x1f\x7f]+$"
+
 Finite = Annotated[float, Field(allow_inf_nan=False)]
-NonNegative = Annotated[float, Field(ge=0.0, allow_inf_nan=False)]
-Position = Annotated[list[Finite], Field(min_length=2, max_length=2)]
-Name = Annotated[str, Field(min_length=1, max_length=128)]
+NonNegative = Annotated[float, Field(ge=0.0, le=MAX_AMOUNT, allow_inf_nan=False)]
+Coordinate = Annotated[float, Field(ge=-MAX_COORDINATE, le=MAX_COORDINATE, allow_inf_nan=False)]
+Position = Annotated[list[Coordinate], Field(min_length=2, max_length=2)]
+Speed = Annotated[float, Field(ge=MIN_SPEED, le=MAX_SPEED, allow_inf_nan=False)]
+Name = Annotated[str, Field(min_length=1, max_length=128, pattern=NAME_PATTERN)]
 
 RobotStatus = Literal["idle", "reserved", "busy", "charging", "offline"]
 ROBOT_STATUSES: tuple[str, ...] = ("idle", "reserved", "busy", "charging", "offline")
@@ -31,7 +43,7 @@ class Robot(BaseModel):
     id: Name
     cloud: Name
     position: Position = Field(description="[x, y] in metres")
-    speed: Annotated[float, Field(gt=0.0, allow_inf_nan=False)] = Field(description="m/s")
+    speed: Speed = Field(description="m/s")
     battery: Annotated[float, Field(ge=0.0, le=100.0, allow_inf_nan=False)]
     status: RobotStatus
     travel_cost_per_m: NonNegative

@@ -6,9 +6,17 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from robocloud.domain.robot import Name, NonNegative, Position
+from robocloud.domain.robot import Name, Position
 
-Count = Annotated[int, Field(ge=1, le=10_000)]
+# Documented bounds (docs/model.md): a coalition of more than MAX_COUNT robots
+# for one capability is beyond any fleet this system is sized for; limits past
+# these are no limits and only risk overflow.
+MAX_COUNT = 1_000
+MAX_ROBOTS = 100_000
+MAX_COST = 1e12
+MAX_TIME = 1e9  # seconds (about 31 years)
+
+Count = Annotated[int, Field(ge=1, le=MAX_COUNT)]
 Priority = Literal["balanced", "time", "cost"]
 Execution = Literal["parallel", "sequential"]
 
@@ -22,9 +30,11 @@ class Task(BaseModel):
     location: Position = Field(description="[x, y] in metres")
     sensing: dict[Name, Count] = Field(default_factory=dict)
     actuating: dict[Name, Count] = Field(default_factory=dict)
-    max_robots: Annotated[int, Field(ge=1, le=100_000)]
-    max_cost: NonNegative
-    max_time: NonNegative
+    max_robots: Annotated[int, Field(ge=1, le=MAX_ROBOTS)]
+    max_cost: Annotated[float, Field(ge=0.0, le=MAX_COST, allow_inf_nan=False)]
+    max_time: Annotated[float, Field(ge=0.0, le=MAX_TIME, allow_inf_nan=False)] = Field(
+        description="seconds"
+    )
     min_battery: Annotated[float, Field(ge=0.0, le=100.0, allow_inf_nan=False)] = 0.0
     priority: Priority = "balanced"
     execution: Execution = "parallel"

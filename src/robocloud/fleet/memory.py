@@ -91,7 +91,9 @@ class MemoryRobotLink:
                 command, start, metres, metres / state.speed, command.work_time(state.capabilities)
             )
             self._jobs[robot_id] = job
-            self._publish(state, status="busy", task=self._progress(job, "travel"))
+            self._publish(
+                state, status="busy", task=self._progress(job, "travel"), last_task=None
+            )
         return Ack(ok=True, robot=robot_id, request_id=command.request_id)
 
     def cancel(self, robot_id: str, request_id: str) -> Ack:
@@ -145,6 +147,7 @@ class MemoryRobotLink:
                     position=[x, y],
                     battery=max(0.0, state.battery - behaviour.energy_needed(job.metres, job.work)),
                     task=self._progress(job, "done"),
+                    last_task=self._progress(job, "done"),
                 )
                 continue
             driven = min(job.elapsed, job.travel)
@@ -162,7 +165,9 @@ class MemoryRobotLink:
         state = self._state(robot_id)
         job = self._jobs.pop(robot_id, None)
         task = self._progress(job, "failed") if job else None
-        return self._publish(state, status="offline", battery=0.0, task=task)
+        return self._publish(
+            state, status="offline", battery=0.0, task=task, last_task=task or state.last_task
+        )
 
     def silence(self, robot_id: str) -> None:
         """The robot stops publishing and answering; ``robots()`` shows it offline later."""

@@ -20,8 +20,10 @@ The robot fields are MODEL.md's. ``task`` is null when the robot has none;
 capabilities there), ``done`` (finished: the robot is idle at the location) or
 ``failed`` (it cannot finish, e.g. its battery died: status ``offline``).
 ``progress`` runs from 0 to 1 over the whole task, by time. A finished task
-(``done`` or ``failed``) stays in the state for a few seconds, then ``task`` is
-null; a receiver handles it once per request. ``seq`` increases with every
+(``done`` or ``failed``) stays in ``task`` for a few seconds, then ``task`` is
+null; a receiver handles it once per request. ``last_task`` (optional) keeps
+the last finished task until the robot is given another, so an IaaS that was
+down while the robot finished still learns how it ended. ``seq`` increases with every
 message of the robot; ``sent_at`` is the robot's unix time in seconds.
 
 Command: the IaaS sends a Zenoh query (``get``) to
@@ -60,7 +62,7 @@ from typing import Annotated, Literal
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter
 
 from robocloud.domain import Capability, Robot, RobotStatus
-from robocloud.domain.robot import Finite, Name, NonNegative, Position
+from robocloud.domain.robot import Finite, Name, NonNegative, Position, Speed
 from robocloud.domain.task import Execution
 
 Phase = Literal["travel", "work", "done", "failed"]
@@ -90,12 +92,17 @@ class State(BaseModel):
     cloud: Name
     kind: Name = Field(description='the robot type, e.g. "tribot" or "base"')
     position: Position = Field(description="[x, y] in metres")
-    speed: Annotated[float, Field(gt=0.0, allow_inf_nan=False)] = Field(description="m/s")
+    speed: Speed = Field(description="m/s")
     battery: Annotated[float, Field(ge=0.0, le=100.0, allow_inf_nan=False)]
     status: RobotStatus
     travel_cost_per_m: NonNegative
     capabilities: dict[Name, Capability]
     task: TaskProgress | None = None
+    last_task: TaskProgress | None = Field(
+        None,
+        description="the robot's last finished task (phase done or failed), "
+        "kept until it is given another",
+    )
     seq: Annotated[int, Field(ge=0)]
     sent_at: Finite = Field(description="unix time, seconds, when the robot sent it")
 

@@ -13,11 +13,15 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from robocloud.domain import Task
 
+# A label is free text of one or more lines: no NUL (PostgreSQL refuses it)
+# and no other control character but tab and newline.
+LABEL_PATTERN = r"^[^\x00-\x08\x0b\x0c\x0e-\x1f\x7f]*$"
+
 
 class RequestCreate(Task):
     """A MODEL.md task, plus an optional label for the application's own use."""
 
-    label: Annotated[str, Field(max_length=200)] | None = None
+    label: Annotated[str, Field(max_length=200, pattern=LABEL_PATTERN)] | None = None
 
     def task(self) -> Task:
         return Task.model_validate(self.model_dump(exclude={"label"}))

@@ -135,6 +135,7 @@ class SimRobot:
             travel_cost_per_m=self.travel_cost_per_m,
             capabilities=self.capabilities,
             task=task,
+            last_task=self.finished,
             seq=self.seq,
             sent_at=now,
         )

@@ -179,6 +179,7 @@ def _routes() -> Any:
             cloud=service.settings.cloud,
             robots=len(service.link.robots()),
             store=service.settings.store_url.split(":", 1)[0],
+            time_scale=service.settings.time_scale,
         )
 
     @router.post("/v1/requests", status_code=202, response_model=RequestPublic, tags=["requests"])

@@ -102,6 +102,9 @@ class Health(BaseModel):
     cloud: str
     robots: int
     store: str
+    time_scale: float = Field(
+        1.0, description="robot seconds per wall second (the simulator's --speedup)"
+    )
 
 
 class ErrorBody(BaseModel):

@@ -7,7 +7,9 @@
     │   └── PayloadTooLarge         a body over the size limit                 (HTTP 413, exit 2)
     ├── NotFound                    no such file, request or robot             (HTTP 404, exit 2)
     ├── Unauthorized                a missing or wrong API key                 (HTTP 401)
-    └── Conflict                    the action does not fit the current state  (HTTP 409)
+    ├── Conflict                    the action does not fit the current state  (HTTP 409)
+    └── Unavailable                 a part it needs is down; try again later   (HTTP 503)
+        └── StoreUnavailable        the database (robocloud.storage)
 
 Each error carries its context (the field, the id) besides its sentence.
 HTTP status codes are mapped in ``robocloud.iaas`` and exit codes in
@@ -52,6 +54,14 @@ class Unauthorized(RoboCloudError):
 
 class Conflict(RoboCloudError):
     pass
+
+
+class Unavailable(RoboCloudError):
+    """Something robocloud needs cannot be reached now; the same call may work later."""
+
+    def __init__(self, message: str, retry_after: float = 5.0) -> None:
+        super().__init__(message)
+        self.retry_after = retry_after
 
 
 def field_path(location: Iterable[int | str], prefix: str = "") -> str:

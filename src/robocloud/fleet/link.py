@@ -29,6 +29,8 @@ logger = logging.getLogger(__name__)
 
 StateListener = Callable[[State], None]
 NO_ANSWER = "robot {robot} did not answer."
+FORGET_AFTER = 600.0  # seconds of silence after which a robot is forgotten
+MAX_FLEET = 100_000  # robots one link follows at most
 
 
 class RobotLink(Protocol):
@@ -71,11 +73,22 @@ class LatestStates:
     ordering and silence the same way.
     """
 
-    def __init__(self, cloud: str, offline_after: float, clock: Callable[[], float]) -> None:
+    def __init__(
+        self,
+        cloud: str,
+        offline_after: float,
+        clock: Callable[[], float],
+        forget_after: float = FORGET_AFTER,
+        max_fleet: int = MAX_FLEET,
+    ) -> None:
         self.cloud = cloud
         self.offline_after = offline_after
         self.clock = clock
+        self.forget_after = forget_after
+        self.max_fleet = max_fleet
         self._lock = threading.Lock()
+        self._pruned_at = clock()
+        self._refused = 0  # states of new robots refused since the fleet was full
         self._states: dict[str, State] = {}
         self._received: dict[str, float] = {}
         self._listeners: list[StateListener] = []
@@ -85,15 +98,37 @@ class LatestStates:
         self._robots: dict[str, tuple[State, Robot]] = {}
 
     def accept(self, state: State) -> bool:
-        """Keep ``state`` if it is newer than the one held; tell the listeners."""
+        """Keep ``state`` if it is newer than the one held; tell the listeners.
+
+        Robots silent for ``forget_after`` seconds are forgotten, and a new
+        robot is refused while ``max_fleet`` robots are known: whatever ids
+        clients publish, memory stays bounded.
+        """
+        now = self.clock()
         with self._lock:
+            if now - self._pruned_at > min(10.0, self.forget_after / 10):
+                self._forget_silent(now)
             held = self._states.get(state.id)
             # A smaller seq sent later is a restarted robot; otherwise an old
             # or repeated message.
             if held is not None and state.seq <= held.seq and state.sent_at <= held.sent_at:
                 return False
+            if held is None and len(self._states) >= self.max_fleet:
+                self._forget_silent(now)
+                if len(self._states) >= self.max_fleet:
+                    self._refused += 1
+                    if self._refused == 1 or self._refused % 1000 == 0:
+                        logger.warning(
+                            "%s already follows %d robots, the most it takes; "
+                            "ignoring robot %s (%d refused so far)",
+                            self.cloud,
+                            self.max_fleet,
+                            state.id,
+                            self._refused,
+                        )
+                    return False
             self._states[state.id] = state
-            self._received[state.id] = self.clock()
+            self._received[state.id] = now
             listeners = list(self._listeners)
         for listener in listeners:
             try:
@@ -101,6 +136,17 @@ class LatestStates:
             except Exception:
                 logger.exception("a robot state listener failed")
         return True
+
+    def _forget_silent(self, now: float) -> None:
+        """Drop the robots silent for longer than ``forget_after`` (the caller holds the lock)."""
+        self._pruned_at = now
+        gone = [rid for rid, at in self._received.items() if now - at > self.forget_after]
+        for rid in gone:
+            del self._states[rid], self._received[rid]
+            self._robots.pop(rid, None)
+        if gone:
+            self._refused = 0
+            logger.info("forgot %d robots silent for over %.0f s", len(gone), self.forget_after)
 
     def states(self) -> dict[str, State]:
         with self._lock:
@@ -153,11 +199,13 @@ class ZenohRobotLink:
         offline_after: float = 5.0,
         command_timeout: float = 2.0,
         clock: Callable[[], float] = time.monotonic,
+        forget_after: float = FORGET_AFTER,
+        max_fleet: int = MAX_FLEET,
     ) -> None:
         self._session = session
         self._cloud = keys.check_chunk(cloud, "cloud")
         self._timeout = command_timeout
-        self._latest = LatestStates(cloud, offline_after, clock)
+        self._latest = LatestStates(cloud, offline_after, clock, forget_after, max_fleet)
         self._warned: set[str] = set()
         self._subscriber = session.declare_subscriber(keys.all_states(cloud), self._on_sample)
 
@@ -243,5 +291,7 @@ class ZenohRobotLink:
     def _warn_once(self, key: str, message: str) -> None:
         # A misconfigured robot repeats itself every second; say it once.
         if key not in self._warned:
+            if len(self._warned) >= 1000:  # bounded, whatever keys clients use
+                self._warned.clear()
             self._warned.add(key)
             logger.warning("ignoring %s", message)

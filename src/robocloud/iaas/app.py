@@ -10,16 +10,19 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-from collections.abc import AsyncIterator, Awaitable, Callable
+from collections.abc import AsyncIterator, Mapping
 from typing import Annotated, Any, Literal
 
-from fastapi import Depends, FastAPI, Header, Query, Request, Response
+from fastapi import Depends, FastAPI, Header, Path, Query, Request, Response, Security
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
+from fastapi.security import HTTPBearer
 from fastapi.sse import EventSourceResponse, ServerSentEvent
+from starlette.datastructures import Headers
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from robocloud.domain import REQUEST_STATES
+from robocloud.domain import RequestState
 from robocloud.errors import (
     Conflict,
     InvalidInput,
@@ -27,6 +30,7 @@ from robocloud.errors import (
     PayloadTooLarge,
     RoboCloudError,
     Unauthorized,
+    Unavailable,
     describe_validation_errors,
 )
 from robocloud.federation.messages import CloudInfo
@@ -44,8 +48,8 @@ from robocloud.iaas.models import (
     RobotPublic,
 )
 from robocloud.iaas.presenters import remote_robot_public, request_public, robot_public
-from robocloud.iaas.service import RequestService
-from robocloud.storage import RequestStore, open_store
+from robocloud.iaas.service import REQUEST_ID, RequestService
+from robocloud.storage import RequestRecord, RequestStore, open_store
 
 log = logging.getLogger(__name__)
 
@@ -56,6 +60,7 @@ STATUS: dict[type[RoboCloudError], int] = {
     NotFound: 404,
     Unauthorized: 401,
     Conflict: 409,
+    Unavailable: 503,
 }
 
 
@@ -66,16 +71,19 @@ def status_of(error: RoboCloudError) -> int:
     return 400
 
 
-ERRORS: dict[int | str, dict[str, Any]] = {
-    code: {"model": ErrorBody, "description": text}
-    for code, text in [
-        (401, "missing or wrong API key"),
-        (404, "no such request"),
-        (409, "the request's state does not allow it"),
-        (413, "the body is too large"),
-        (422, "invalid input"),
-    ]
+_ANSWERS = {
+    401: "missing or wrong API key",
+    404: "no such request",
+    409: "the request's state does not allow it",
+    413: "the body is too large",
+    422: "invalid input (the sentence names the field)",
+    503: "the store is unavailable; try again after Retry-After seconds",
 }
+
+
+def answers(*codes: int) -> dict[int | str, dict[str, Any]]:
+    """The error answers an operation really gives, for its OpenAPI entry."""
+    return {code: {"model": ErrorBody, "description": _ANSWERS[code]} for code in codes}
 
 
 def create_app(
@@ -101,7 +109,12 @@ def create_app(
                 )
                 stack.callback(session.close)
                 the_link = ZenohRobotLink(
-                    session, settings.cloud, offline_after=settings.offline_after
+                    session,
+                    settings.cloud,
+                    offline_after=settings.offline_after,
+                    command_timeout=settings.ack_timeout,
+                    forget_after=settings.forget_after,
+                    max_fleet=settings.max_fleet,
                 )
                 stack.callback(the_link.close)
             home = Home(
@@ -123,6 +136,7 @@ def create_app(
             )
             service = RequestService(settings, the_store, view)
             service.home_info = home.info
+            service.lent_for = home.lent_for
             home.origin = service
             await service.start()
             stack.push_async_callback(service.stop)
@@ -137,11 +151,10 @@ def create_app(
         version="0.1.0",
         description="Send tasks to a federation of robot clouds; follow and cancel them.",
         lifespan=lifespan,
-        responses=ERRORS,
     )
     app.state.settings = settings
     _install_error_handlers(app)
-    _install_body_limit(app, settings.max_body_bytes)
+    app.add_middleware(Gate, keys=settings.api_keys, limit=settings.max_body_bytes)
     app.include_router(_routes())
     return app
 
@@ -151,26 +164,48 @@ def service_of(request: Request) -> RequestService:
     return service
 
 
-def application_of(request: Request, authorization: Annotated[str | None, Header()] = None) -> str:
+def application_of(request: Request) -> str:
+    """The application whose API key the ``Gate`` checked, before anything read the body."""
+    application = request.scope.get("state", {}).get("application")
+    if not isinstance(application, str):
+        raise Unauthorized("an API key is required: send 'Authorization: Bearer <key>'.")
+    return application
+
+
+def authenticate(authorization: str | None, keys: Mapping[str, str]) -> str:
     """The application an API key belongs to (``Authorization: Bearer KEY``)."""
-    keys = request.app.state.settings.api_keys
-    scheme, _, key = (authorization or "").partition(" ")
     if not authorization:
         raise Unauthorized("an API key is required: send 'Authorization: Bearer <key>'.")
+    scheme, _, key = authorization.partition(" ")
     if scheme.lower() != "bearer" or key.strip() not in keys:
         raise Unauthorized("the API key is not valid.")
-    application: str = keys[key.strip()]
-    return application
+    return keys[key.strip()]
+
+
+# Declares the scheme in the OpenAPI; the Gate does the checking.
+BEARER = HTTPBearer(auto_error=False, description="the application's API key")
+RequestId = Annotated[str, Path(description="a request's id, e.g. req-abcdefgh2345")]
 
 
 Service = Annotated[RequestService, Depends(service_of)]
 Application = Annotated[str, Depends(application_of)]
 
 
+async def existing_request(
+    request_id: RequestId, service: Service, application: Application
+) -> RequestRecord:
+    """The application's request, or 404 (as a dependency: before a stream starts)."""
+    return await service.get(application, request_id)
+
+
+OwnedRequest = Annotated[RequestRecord, Depends(existing_request)]
+
+
 def _routes() -> Any:
     from fastapi import APIRouter
 
     router = APIRouter()
+    api = APIRouter(dependencies=[Security(BEARER)])
 
     @router.get("/healthz", response_model=Health, tags=["service"])
     async def health(service: Service) -> Health:
@@ -182,68 +217,109 @@ def _routes() -> Any:
             time_scale=service.settings.time_scale,
         )
 
-    @router.post("/v1/requests", status_code=202, response_model=RequestPublic, tags=["requests"])
+    @api.post(
+        "/v1/requests",
+        status_code=202,
+        response_model=RequestPublic,
+        tags=["requests"],
+        responses=answers(401, 413, 422, 503),
+    )
     async def create_request(
         body: RequestCreate,
         service: Service,
         application: Application,
         response: Response,
-        idempotency_key: Annotated[str | None, Header(max_length=200)] = None,
+        idempotency_key: Annotated[
+            str | None,
+            Header(
+                max_length=200,
+                pattern=r"^[\x20-\x7e]+$",
+                description="a retry with the same key and body returns the same request",
+            ),
+        ] = None,
     ) -> RequestPublic:
         """Send a task; robocloud selects, reserves and dispatches a coalition for it."""
         record = await service.submit(application, body.task(), body.label, idempotency_key)
         response.headers["Location"] = f"/v1/requests/{record.id}"
         return request_public(record, service)
 
-    @router.get("/v1/requests", response_model=RequestList, tags=["requests"])
+    @api.get(
+        "/v1/requests",
+        response_model=RequestList,
+        tags=["requests"],
+        responses=answers(401, 422, 503),
+    )
     async def list_requests(
         service: Service,
         application: Application,
-        state: Annotated[str | None, Query(description="only requests in this state")] = None,
+        state: Annotated[
+            RequestState | None, Query(description="only requests in this state")
+        ] = None,
         limit: Annotated[int, Query(ge=1, le=200)] = 50,
         before: Annotated[
-            str | None, Query(description="the `next` cursor of the previous page")
+            str | None,
+            Query(
+                max_length=64, description="the `next` cursor of the previous page (a request id)"
+            ),
         ] = None,
     ) -> RequestList:
-        if state is not None and state not in REQUEST_STATES:
+        if before is not None and not REQUEST_ID.fullmatch(before):
             raise InvalidInput(
-                f"state must be one of {', '.join(REQUEST_STATES)}; {state!r} is not a state.",
-                "state",
+                f"before={before!r} is not a request id; pass the `next` of the previous page.",
+                "before",
             )
-        records, cursor = await asyncio.to_thread(
+        records, cursor = await service.blocking(
             service.store.list, application, state, limit, before
         )
         return RequestList(items=[request_public(r, service) for r in records], next=cursor)
 
-    @router.get("/v1/requests/{request_id}", response_model=RequestPublic, tags=["requests"])
+    @api.get(
+        "/v1/requests/{request_id}",
+        response_model=RequestPublic,
+        tags=["requests"],
+        responses=answers(401, 404, 503),
+    )
     async def get_request(
-        request_id: str, service: Service, application: Application
+        request_id: RequestId, service: Service, application: Application
     ) -> RequestPublic:
         return request_public(await service.get(application, request_id), service)
 
-    @router.post(
-        "/v1/requests/{request_id}/cancel", response_model=RequestPublic, tags=["requests"]
+    @api.post(
+        "/v1/requests/{request_id}/cancel",
+        response_model=RequestPublic,
+        tags=["requests"],
+        responses=answers(401, 404, 409, 503),
     )
     async def cancel_request(
-        request_id: str, service: Service, application: Application
+        request_id: RequestId, service: Service, application: Application
     ) -> RequestPublic:
         """Cancel a request that is not finished: every robot stops and is released."""
         return request_public(await service.cancel(application, request_id), service)
 
-    @router.get(
-        "/v1/requests/{request_id}/events", response_class=EventSourceResponse, tags=["requests"]
+    @api.get(
+        "/v1/requests/{request_id}/events",
+        response_class=EventSourceResponse,
+        tags=["requests"],
+        responses=answers(401, 404, 503),
     )
     async def request_events(
-        request_id: str, service: Service, application: Application
+        record: OwnedRequest,
+        service: Service,
+        application: Application,
     ) -> AsyncIterator[ServerSentEvent]:
         """Server-sent events: the request now, then after each change, until it is final."""
-        await service.get(application, request_id)  # 404 before the stream starts
-        async for record in service.events(application, request_id):
+        # The dependency answered 404 for an unknown request before the stream started.
+        async for update in service.events(application, record.id):
             yield ServerSentEvent(
-                event="request", data=request_public(record, service).model_dump(mode="json")
+                event="request", data=request_public(update, service).model_dump(mode="json")
             )
 
-    @router.get("/v1/robots", response_model=list[RobotPublic], tags=["robots"])
+    @api.get(
+        "/v1/robots",
+        response_model=list[RobotPublic],
+        tags=["robots"],
+        responses=answers(401, 422),
+    )
     async def robots(
         request: Request,
         service: Service,
@@ -253,7 +329,12 @@ def _routes() -> Any:
             Query(description="this cloud's robots, or those of every live cloud"),
         ] = "cloud",
     ) -> list[RobotPublic]:
-        """The live state of the robots."""
+        """The live state of the robots.
+
+        A robot silent for longer than the IaaS's forget time (``--forget-after``,
+        10 minutes by default) is no longer listed; it is listed again when it
+        reports.
+        """
         robots = robot_public(service)
         overlay: ZenohOverlay | None = request.app.state.overlay
         if scope == "federation" and overlay is not None:
@@ -261,7 +342,12 @@ def _routes() -> Any:
                 robots += [remote_robot_public(r) for r in fleet.robots]
         return robots
 
-    @router.get("/v1/clouds", response_model=list[CloudInfo], tags=["federation"])
+    @api.get(
+        "/v1/clouds",
+        response_model=list[CloudInfo],
+        tags=["federation"],
+        responses=answers(401),
+    )
     async def clouds(
         request: Request, service: Service, application: Application
     ) -> list[CloudInfo]:
@@ -271,16 +357,14 @@ def _routes() -> Any:
             return [service.home_info()]
         return await asyncio.to_thread(overlay.infos)
 
+    router.include_router(api)
     return router
 
 
 def _install_error_handlers(app: FastAPI) -> None:
     async def robocloud_error(_: Request, error: Exception) -> JSONResponse:
         assert isinstance(error, RoboCloudError)
-        headers = {"WWW-Authenticate": "Bearer"} if isinstance(error, Unauthorized) else None
-        return JSONResponse(
-            {"detail": error.message}, status_code=status_of(error), headers=headers
-        )
+        return _error(error)
 
     async def validation_error(_: Request, error: Exception) -> JSONResponse:
         assert isinstance(error, RequestValidationError)
@@ -301,7 +385,8 @@ def _install_error_handlers(app: FastAPI) -> None:
         text = {404: "there is no such path.", 405: "this method is not allowed here."}.get(
             error.status_code, str(error.detail)
         )
-        return JSONResponse({"detail": text}, status_code=error.status_code)
+        # A 405 names the methods that are allowed (Allow), as HTTP asks.
+        return JSONResponse({"detail": text}, status_code=error.status_code, headers=error.headers)
 
     async def unexpected(_: Request, error: Exception) -> JSONResponse:
         log.exception("unexpected error", exc_info=error)
@@ -315,27 +400,75 @@ def _install_error_handlers(app: FastAPI) -> None:
     app.add_exception_handler(Exception, unexpected)
 
 
-def _install_body_limit(app: FastAPI, limit: int) -> None:
-    """413 for a body over ``limit`` bytes, before anything reads it whole."""
+class Gate:
+    """Checks what needs no body first: the API key on ``/v1/`` (401), then the body's size (413).
 
-    @app.middleware("http")
-    async def body_limit(
-        request: Request, call_next: Callable[[Request], Awaitable[Response]]
-    ) -> Response:
-        length = request.headers.get("content-length")
-        if length is not None and length.isdigit() and int(length) > limit:
-            return JSONResponse(
-                {"detail": f"the body is {int(length)} bytes; at most {limit} are accepted."},
-                status_code=413,
+    A pure ASGI middleware, so a request without a key is refused before its
+    body is read or parsed, and a body without a length is read at most
+    ``limit`` bytes far.
+    """
+
+    def __init__(self, app: ASGIApp, keys: Mapping[str, str], limit: int) -> None:
+        self.app = app
+        self.keys = keys
+        self.limit = limit
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        headers = Headers(scope=scope)
+        if scope["path"].startswith("/v1/"):
+            try:
+                application = authenticate(headers.get("authorization"), self.keys)
+            except Unauthorized as error:
+                await _error(error)(scope, receive, send)
+                return
+            scope.setdefault("state", {})["application"] = application
+        length = headers.get("content-length")
+        if length is not None and length.isdigit() and int(length) > self.limit:
+            refusal = PayloadTooLarge(
+                f"the body is {int(length)} bytes; at most {self.limit} are accepted."
             )
-        if length is None and request.method in ("POST", "PUT", "PATCH"):
+            await _error(refusal)(scope, receive, send)
+            return
+        if length is None and scope["method"] in ("POST", "PUT", "PATCH"):
             body = b""
-            async for chunk in request.stream():
-                body += chunk
-                if len(body) > limit:
-                    return JSONResponse(
-                        {"detail": f"the body is over {limit} bytes, the most accepted."},
-                        status_code=413,
+            more = True
+            while more:
+                message = await receive()
+                if message["type"] != "http.request":
+                    return  # the client went away
+                body += message.get("body", b"")
+                more = message.get("more_body", False)
+                if len(body) > self.limit:
+                    refusal = PayloadTooLarge(
+                        f"the body is over {self.limit} bytes, the most accepted."
                     )
-            request._body = body
-        return await call_next(request)
+                    await _error(refusal)(scope, receive, send)
+                    return
+            receive = _replay(body, receive)
+        await self.app(scope, receive, send)
+
+
+def _replay(body: bytes, receive: Receive) -> Receive:
+    sent = False
+
+    async def replayed() -> Message:
+        nonlocal sent
+        if not sent:
+            sent = True
+            return {"type": "http.request", "body": body, "more_body": False}
+        return await receive()
+
+    return replayed
+
+
+def _error(error: RoboCloudError) -> JSONResponse:
+    """The one shape of an error answer: ``{"detail": sentence}`` and the headers it needs."""
+    headers: dict[str, str] = {}
+    if isinstance(error, Unauthorized):
+        headers["WWW-Authenticate"] = "Bearer"
+    if isinstance(error, Unavailable):
+        headers["Retry-After"] = str(max(1, round(error.retry_after)))
+    return JSONResponse({"detail": error.message}, status_code=status_of(error), headers=headers)

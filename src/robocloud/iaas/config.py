@@ -55,6 +55,11 @@ class Settings:
     seed: int = 0
     reselect_attempts: int = 8  # selections per request when reservations conflict
     ack_timeout: float = 2.0  # seconds a robot has to acknowledge a command
+    # A robot silent this long is forgotten (memory stays bounded whatever
+    # ids robots come and go with); at most max_fleet robots are followed.
+    forget_after: float = 600.0
+    max_fleet: int = 100_000
+    cancel_timeout: float = 5.0  # seconds a cancel waits for its state to be stored
     # Simulated robots may run faster than the wall clock (``robocloud sim
     # --speedup``); the time left for a replacement is counted in robot time.
     time_scale: float = 1.0

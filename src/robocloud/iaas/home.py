@@ -273,6 +273,14 @@ class Home:
             "its robots finished" if task.phase == "done" else f"robot {state.id} failed",
         )
 
+    def lent_for(self, robot_id: str) -> str | None:
+        """The origin's request id this robot is lent to now, None when it is not lent."""
+        shadow_id = self.store.reservations().get(robot_id)
+        record = self.store.get(shadow_id) if shadow_id is not None else None
+        if record is None or not is_shadow(record) or is_final(record.state):
+            return None
+        return origin_request(record)
+
     # -- reconciliation --------------------------------------------------------
 
     def reconcile(self) -> None:

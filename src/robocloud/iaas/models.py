@@ -11,7 +11,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from robocloud.domain import Task
+from robocloud.domain import RequestState, Task
 
 # A label is free text of one or more lines: no NUL (PostgreSQL refuses it)
 # and no other control character but tab and newline.
@@ -38,8 +38,11 @@ class Assignment(BaseModel):
     robot: str
     cloud: str
     capabilities: list[str]
-    time: float
-    cost: float
+    time: float = Field(description="t_i: robot seconds it needs from when it was sent")
+    cost: float = Field(description="c_i")
+    offset: float = Field(
+        0.0, description="robot seconds after the request's dispatch at which it was sent"
+    )
     progress: Progress | None = None
 
 
@@ -52,7 +55,7 @@ class FrontMember(BaseModel):
 
 class HistoryEntry(BaseModel):
     kind: Literal["state", "event"]
-    state: str
+    state: RequestState
     at: datetime
     detail: str | None = None
 
@@ -62,14 +65,21 @@ class RequestPublic(BaseModel):
 
     id: str
     label: str | None
-    state: str
+    state: RequestState
     reason: str | None
     created_at: datetime
     updated_at: datetime
     task: dict[str, Any]
     coalition: list[Assignment] | None = None
-    time: float | None = Field(None, description="T of the chosen coalition, seconds")
-    cost: float | None = Field(None, description="C of the chosen coalition")
+    time: float | None = Field(
+        None,
+        description="T of the coalition now, robot seconds from dispatch (after a replacement, "
+        "the latest finish: when each robot was sent plus its t_i)",
+    )
+    cost: float | None = Field(None, description="C of the coalition now (the sum of its c_i)")
+    chosen: FrontMember | None = Field(
+        None, description="the point of the Pareto front the selection chose"
+    )
     pareto: list[FrontMember] = Field(default_factory=list)
     optimizer: str | None = None
     selection_ms: float | None = None

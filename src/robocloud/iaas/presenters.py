@@ -45,7 +45,8 @@ def request_public(record: RequestRecord, service: RequestService) -> RequestPub
             else:
                 progress = Progress(phase="pending", progress=0.0)
             coalition.append(Assignment(progress=progress, **a))
-    chosen = selection.get("chosen") or {}
+    chosen = selection.get("chosen") or None
+    current = selection.get("current") or chosen or {}
     return RequestPublic(
         id=record.id,
         label=record.label,
@@ -55,8 +56,9 @@ def request_public(record: RequestRecord, service: RequestService) -> RequestPub
         updated_at=record.updated_at,
         task=record.task,
         coalition=coalition,
-        time=chosen.get("time"),
-        cost=chosen.get("cost"),
+        time=current.get("time"),
+        cost=current.get("cost"),
+        chosen=FrontMember(**chosen) if chosen else None,
         pareto=[FrontMember(**m) for m in selection.get("pareto", [])],
         optimizer=selection.get("optimizer"),
         selection_ms=selection.get("elapsed_ms"),

@@ -1,31 +1,35 @@
-"""The request life cycle of one cloud's IaaS (the thesis's Virtualization Engine at work).
+"""The requests of one cloud's IaaS (the thesis's Virtualization Engine): their supervisor.
 
-A request's path (ARCHITECTURE.md): stored as ``received`` -> ``selecting``:
-the robots in view, minus the reserved ones, go through the selection
-pipeline -> each chosen robot is reserved in the store (the store refuses a
-robot another request holds; selection then runs again without it) -> the
-robots are sent their commands and acknowledge -> ``dispatched`` -> their
-state messages move the request to ``underway`` and, once every robot is
-done, ``completed``. A robot that fails on the way is replaced within what is
-left of the request's cost and time, or the request fails with a reason.
-Every state change is committed to the store before anyone is told.
+Each active request is an actor (``robocloud.iaas.actor``) whose rules are the
+pure ``robocloud.iaas.lifecycle.decide``. This service starts the actors (for
+new requests, and for unfinished ones after a restart), routes the robots'
+reports to the request that follows each robot, answers the HTTP API, and
+keeps every task it starts: it awaits them when it stops and logs their errors.
+
+Robots are always told: a robot of this cloud that reports working on a
+request that is not active for it (neither one of this cloud's requests that
+follows it nor a loan to another cloud) is told to stop, at once and then at
+most once a second while it keeps at it.
 """
 
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
+import re
 import time
-from collections.abc import AsyncIterator, Callable, Coroutine, Sequence
-from dataclasses import dataclass, field
-from typing import Any
+from collections.abc import AsyncIterator, Callable, Coroutine
+from concurrent.futures import ThreadPoolExecutor
+from functools import partial
+from typing import Any, TypeVar
 
 from robocloud.domain import Robot, Task, is_final
-from robocloud.errors import Conflict, NotFound, RoboCloudError
+from robocloud.errors import Conflict, InvalidInput, NotFound, Unavailable
 from robocloud.federation.messages import CloudInfo
 from robocloud.federation.view import FederationView
-from robocloud.fleet.messages import Assign, State
+from robocloud.fleet.messages import State
+from robocloud.iaas import lifecycle as lc
+from robocloud.iaas.actor import RequestActor, Selector, Shell
 from robocloud.iaas.config import Settings
 from robocloud.selection.pipeline import select
 from robocloud.selection.result import SelectionResult
@@ -33,62 +37,11 @@ from robocloud.storage import RequestRecord, RequestStore
 
 log = logging.getLogger(__name__)
 
-
-@dataclass
-class Assigned:
-    """One robot working for a request, as the IaaS tracks it."""
-
-    robot: str
-    cloud: str
-    capabilities: list[str]
-    time: float
-    cost: float
-    phase: str = "pending"
-    progress: float = 0.0
-    confirmed: bool = True  # False after a restart, until the robot reports this request
-    watched_at: float = 0.0  # when this IaaS began to follow the robot (its clock)
-
-    def to_json(self) -> dict[str, Any]:
-        return {
-            "robot": self.robot,
-            "cloud": self.cloud,
-            "capabilities": self.capabilities,
-            "time": self.time,
-            "cost": self.cost,
-        }
-
-
-@dataclass
-class Tracking:
-    """A dispatched request: its task, its robots, when it started."""
-
-    request_id: str
-    task: Task
-    robots: dict[str, Assigned]
-    dispatched_at: float  # wall clock, seconds
-    selection: dict[str, Any] = field(default_factory=dict)
-    recovered_at: float | None = None
-
-
-def assignments_for(
-    result: SelectionResult, robots: Sequence[Robot], task: Task, ids: Sequence[str]
-) -> list[Assigned]:
-    """The chosen robots with the capabilities each brings, its t_i and c_i."""
-    from robocloud.selection.problem import robot_terms
-
-    by_id = {robot.id: robot for robot in robots}
-    chosen = [by_id[i] for i in ids]
-    terms = robot_terms(chosen, task)
-    return [
-        Assigned(
-            robot=robot.id,
-            cloud=robot.cloud,
-            capabilities=[name for k, name in enumerate(terms.capabilities) if terms.uses[i, k]],
-            time=float(terms.time[i]),
-            cost=float(terms.cost[i]),
-        )
-        for i, robot in enumerate(chosen)
-    ]
+T = TypeVar("T")
+REQUEST_ID = re.compile(r"req-[a-z2-7]{12}")
+WORKING = frozenset({"travel", "work"})
+TELL_AGAIN_AFTER = 1.0  # seconds between two stop commands to a robot for one request
+IO_THREADS = 64  # blocking calls at once: robots' acks, other clouds, the store
 
 
 class RequestService:
@@ -100,116 +53,186 @@ class RequestService:
         store: RequestStore,
         view: FederationView,
         clock: Callable[[], float] = time.time,
+        selector: Selector | None = None,
     ) -> None:
         self.settings = settings
         self.store = store
         self.view = view
         self.link = view.link
         self.clock = clock
-        self._tracking: dict[str, Tracking] = {}
-        self._robot_request: dict[str, str] = {}
-        self._locks: dict[str, asyncio.Lock] = {}
-        self._select_lock = asyncio.Lock()
+        self._io = ThreadPoolExecutor(IO_THREADS, thread_name_prefix=f"iaas-{settings.cloud}")
+        self._shell = Shell(
+            store=store,
+            view=view,
+            selector=selector or self._select_in_thread,
+            rules=lc.Rules(
+                offline_after=settings.offline_after,
+                attempts=settings.reselect_attempts,
+                time_scale=settings.time_scale,
+            ),
+            blocking=self.blocking,
+            follow=self._follow,
+            unfollow=self._unfollow,
+            publish=self._publish,
+            held=lambda: self._routes.keys(),
+            wall=clock,
+        )
+        self._actors: dict[str, RequestActor] = {}
+        self._tasks: set[asyncio.Task[Any]] = set()  # actors and background work
+        self._routes: dict[str, str] = {}  # robot -> the request that follows it
         self._listeners: dict[str, set[asyncio.Queue[RequestRecord | None]]] = {}
-        self._tasks: set[asyncio.Task[Any]] = set()
+        self._told: dict[tuple[str, str], float] = {}  # (robot, request) -> when told to stop
         self._loop: asyncio.AbstractEventLoop | None = None
-        self._started_at = 0.0
-        # This cloud's presence summary (set by the app from its Home).
+        self._stop_listening: Callable[[], None] = lambda: None
+        # This cloud's presence summary and its loans (set by the app from its Home).
         self.home_info: Callable[[], CloudInfo] = lambda: CloudInfo(
             cloud=settings.cloud, robots=len(self.link.robots()), idle=0
         )
+        self.lent_for: Callable[[str], str | None] = lambda robot: None
 
-    # -- life of the service -------------------------------------------------
+    # -- life of the service -------------------------------------------------------
 
     async def start(self) -> None:
         self._loop = asyncio.get_running_loop()
-        self._started_at = self.clock()
-        self.view.on_state(self._state_from_thread)
+        self._stop_listening = self.view.on_state(self._state_from_thread)
         await self._recover()
-        self._spawn(self._watch())
 
     async def stop(self) -> None:
+        self._stop_listening()
         for task in list(self._tasks):
             task.cancel()
-        for task in list(self._tasks):
-            with contextlib.suppress(BaseException):
-                await task
+        await asyncio.gather(*self._tasks, return_exceptions=True)
         for queues in self._listeners.values():
             for queue in queues:
                 queue.put_nowait(None)
+        self._io.shutdown(wait=False, cancel_futures=True)
 
-    def _spawn(self, coroutine: Coroutine[Any, Any, Any]) -> asyncio.Task[Any]:
-        task: asyncio.Task[Any] = asyncio.ensure_future(coroutine)
+    async def blocking(self, function: Callable[..., T], *args: Any) -> T:
+        """``function(*args)`` on the IaaS's I/O threads (the store, robots, other clouds)."""
+        loop = asyncio.get_running_loop()
+        return await loop.run_in_executor(self._io, partial(function, *args))
+
+    def _spawn(self, work: Coroutine[Any, Any, Any], what: str) -> asyncio.Task[Any]:
+        """A task this service owns: awaited in ``stop``, its error logged."""
+        task = asyncio.ensure_future(work)
         self._tasks.add(task)
-        task.add_done_callback(self._tasks.discard)
+
+        def done(finished: asyncio.Task[Any]) -> None:
+            self._tasks.discard(finished)
+            if not finished.cancelled() and finished.exception() is not None:
+                log.error("%s failed", what, exc_info=finished.exception())
+
+        task.add_done_callback(done)
         return task
 
-    def _lock(self, request_id: str) -> asyncio.Lock:
-        return self._locks.setdefault(request_id, asyncio.Lock())
+    def _start(self, record: RequestRecord, life: lc.Life, start: lc.Start) -> None:
+        actor = RequestActor(self._shell, life, record)
+        self._actors[record.id] = actor
+        task = self._spawn(actor.run(start), f"the actor of request {record.id}")
 
-    # -- what the HTTP API calls ------------------------------------------------
+        def ended(_: asyncio.Task[Any]) -> None:
+            if self._actors.get(record.id) is actor:
+                del self._actors[record.id]
+            self._forget_routes(record.id)
+
+        task.add_done_callback(ended)
+
+    async def _select_in_thread(self, robots: list[Robot], task: Task) -> SelectionResult:
+        result: SelectionResult = await asyncio.to_thread(
+            select,
+            robots,
+            task,
+            self.settings.optimizer,  # type: ignore[arg-type]
+            seed=self.settings.seed,
+        )
+        return result
+
+    # -- what the HTTP API calls ----------------------------------------------------
 
     async def submit(
         self, application: str, task: Task, label: str | None, idempotency_key: str | None
     ) -> RequestRecord:
-        record, created = await asyncio.to_thread(
-            self.store.create_request,
-            application,
-            task.model_dump(mode="json"),
-            label,
-            idempotency_key,
+        task_json = task.model_dump(mode="json")
+        record, created = await self.blocking(
+            self.store.create_request, application, task_json, label, idempotency_key
         )
-        if created:
-            self._spawn(self._run(record.id))
+        if not created:
+            if record.task != task_json or record.label != label:
+                raise InvalidInput(
+                    f"Idempotency-Key {idempotency_key!r} was already used for another "
+                    f"request ({record.id}) with a different body; a new request needs a "
+                    "new key.",
+                    "Idempotency-Key",
+                )
+            return record
+        life = lc.Life(request_id=record.id, task=task, rules=self._shell.rules)
+        self._start(record, life, lc.Start())
         return record
 
     async def get(self, application: str, request_id: str) -> RequestRecord:
+        if not REQUEST_ID.fullmatch(request_id):
+            raise NotFound(f"there is no request {request_id!r}.", request_id)
         if self.store.local_reads:
             # Measured (benchmarks/service.py, 1,000 robots, GET at 200/s):
-            # the two thread hand-offs of to_thread, not the 0.5 ms read,
-            # made the slow tail.
+            # the two thread hand-offs, not the 0.5 ms read, made the slow tail.
             record = self.store.get(request_id, application)
         else:
-            record = await asyncio.to_thread(self.store.get, request_id, application)
+            record = await self.blocking(self.store.get, request_id, application)
         if record is None:
             raise NotFound(f"there is no request {request_id!r}.", request_id)
         return record
 
     async def cancel(self, application: str, request_id: str) -> RequestRecord:
         record = await self.get(application, request_id)
-        async with self._lock(request_id):
-            record = await self.get(application, request_id)
-            if record.state == "canceled":
-                return record
-            if is_final(record.state):
-                raise Conflict(
-                    f"request {request_id} is already {record.state}; only a request that is "
-                    "not finished can be canceled."
-                )
-            record = await asyncio.to_thread(
-                self.store.transition, request_id, "canceled", None, "canceled by the application"
+        actor = self._actors.get(request_id)
+        if actor is not None:
+            reply: asyncio.Future[RequestRecord] = asyncio.get_running_loop().create_future()
+            actor.post(lc.CancelAsked(), reply)
+            try:
+                record = await asyncio.wait_for(asyncio.shield(reply), self.settings.cancel_timeout)
+            except TimeoutError:
+                raise Unavailable(
+                    f"the cancel of request {request_id} is not stored yet (the store may be "
+                    "unavailable); it will be carried out, ask again to see it."
+                ) from None
+        if record.state == "canceled":
+            return record
+        if is_final(record.state):
+            raise Conflict(
+                f"request {request_id} is already {record.state}; only a request that is "
+                "not finished can be canceled."
             )
-            tracking = self._forget(request_id)
+        if actor is not None:
+            raise Unavailable(f"the cancel of request {request_id} could not be stored; ask again.")
+        # Not run by this process (it is stopping): store it directly.
+        record = await self.blocking(
+            self.store.transition, request_id, "canceled", None, "canceled by the application"
+        )
         self._publish(record)
-        if tracking is not None:
-            await self._stop_robots(request_id, list(tracking.robots.values()))
         return record
 
     def progress_of(self, robot_id: str) -> tuple[str, float] | None:
-        request_id = self._robot_request.get(robot_id)
-        tracking = self._tracking.get(request_id) if request_id else None
-        if tracking is None or robot_id not in tracking.robots:
-            return None
-        assigned = tracking.robots[robot_id]
-        return assigned.phase, assigned.progress
+        member = self._member(robot_id)
+        return (member.phase, member.progress) if member is not None else None
+
+    def request_of(self, robot_id: str) -> str | None:
+        return self._routes.get(robot_id)
 
     def coalition_robots(self, request_id: str) -> list[str]:
         """The robots working for a request now (what the homes of remote robots ask)."""
-        tracking = self._tracking.get(request_id)
-        return sorted(tracking.robots) if tracking is not None else []
+        actor = self._actors.get(request_id)
+        if actor is None:
+            return []
+        robots = {m.robot for m in actor.life.followed()}
+        attempt = actor.life.attempt
+        if attempt is not None:
+            robots |= {m.robot for m in attempt.chosen}
+        return sorted(robots)
 
-    def request_of(self, robot_id: str) -> str | None:
-        return self._robot_request.get(robot_id)
+    def current(self, request_id: str) -> lc.Life | None:
+        """The live life of an active request (its members' phases), if this process runs it."""
+        actor = self._actors.get(request_id)
+        return actor.life if actor is not None else None
 
     async def events(self, application: str, request_id: str) -> AsyncIterator[RequestRecord]:
         """The request now, then after each change, until it is final."""
@@ -225,450 +248,124 @@ class RequestService:
                 record = update
                 yield record
         finally:
-            self._listeners.get(request_id, set()).discard(queue)
+            queues = self._listeners.get(request_id)
+            if queues is not None:
+                queues.discard(queue)
+                if not queues:
+                    del self._listeners[request_id]
+
+    def loan_ended(self, request_id: str, robot: str, home: str, why: str) -> None:
+        """A robot's home ended its loan to one of our requests (called on any thread)."""
+        if self._loop is None:
+            return
+        event = lc.LoanEnded(robot, f"its home {home} ended the loan: {why}")
+        self._loop.call_soon_threadsafe(self._post, request_id, event)
+
+    # -- followers, routes and robots' reports ------------------------------------------
 
     def _publish(self, record: RequestRecord) -> None:
         for queue in self._listeners.get(record.id, ()):
             queue.put_nowait(record)
 
-    # -- selection and dispatch ---------------------------------------------
+    def _post(self, request_id: str, event: lc.Event) -> None:
+        actor = self._actors.get(request_id)
+        if actor is not None:
+            actor.post(event)
 
-    async def _remote(self, request_id: str, task: Task, exclude: set[str]) -> list[Robot]:
-        """The other clouds' idle robots (gathered outside the selection lock)."""
-        view = await asyncio.to_thread(self.view.remote_robots, task, exclude)
-        for note in view.notes:
-            await self._event(request_id, note)
-        return view.robots
+    def _member(self, robot_id: str) -> lc.Member | None:
+        request_id = self._routes.get(robot_id)
+        actor = self._actors.get(request_id) if request_id is not None else None
+        if actor is None:
+            return None
+        for member in actor.life.followed():
+            if member.robot == robot_id:
+                return member
+        return None
 
-    def _local(self, exclude: set[str]) -> list[Robot]:
-        """This cloud's robots, read under the selection lock so no one else holds them."""
-        return [r for r in self.view.local_robots(self._robot_request) if r.id not in exclude]
+    def _follow(self, request_id: str, robots: lc.Pairs) -> None:
+        for robot, cloud in robots:
+            self._routes[robot] = request_id
+            self.view.watch(robot, cloud)
 
-    async def _run(self, request_id: str, resumed: bool = False) -> None:
-        try:
-            async with self._lock(request_id):
-                record = await asyncio.to_thread(self.store.get, request_id)
-                if record is None or is_final(record.state):
-                    return
-                if record.state == "received":
-                    record = await asyncio.to_thread(self.store.transition, request_id, "selecting")
-                    self._publish(record)
-                await self._select_and_dispatch(record)
-        except Conflict:
-            # The request was canceled meanwhile; its reservations went with it.
-            log.info("request %s moved on while it was being selected", request_id)
-        except Exception as error:  # the request must not be left hanging
-            log.exception("request %s failed", request_id)
-            await self._fail(request_id, f"internal error while selecting: {error}")
+    def _unfollow(self, request_id: str, robots: lc.Pairs) -> None:
+        for robot, cloud in robots:
+            if self._routes.get(robot) == request_id:
+                del self._routes[robot]
+                self.view.unwatch(robot, cloud)
 
-    async def _select_and_dispatch(self, record: RequestRecord) -> None:
-        request_id = record.id
-        task = Task.model_validate(record.task)
-        excluded: set[str] = set()
-        for attempt in range(1, self.settings.reselect_attempts + 1):
-            remote = await self._remote(request_id, task, excluded)
-            async with self._select_lock:
-                robots = [*self._local(excluded), *remote]
-                result = await asyncio.to_thread(
-                    select,
-                    robots,
-                    task,
-                    self.settings.optimizer,  # type: ignore[arg-type]
-                    seed=self.settings.seed,
-                )
-                if result.chosen is None:
-                    record = await asyncio.to_thread(
-                        self.store.transition,
-                        request_id,
-                        "rejected",
-                        result.reason,
-                        None,
-                        selection_json(result, []),
-                    )
-                    self._publish(record)
-                    return
-                home = {robot.id: robot.cloud for robot in robots}
-                pairs = [(robot, home[robot]) for robot in result.chosen.robots]
-                taken = await asyncio.to_thread(self.view.reserve, request_id, pairs)
-            if taken:
-                excluded |= set(taken)
-                await self._event(
-                    request_id,
-                    f"robots {', '.join(taken)} were taken by another "
-                    f"request meanwhile; selecting again (attempt {attempt})",
-                )
-                continue
-            assigned = assignments_for(result, robots, task, result.chosen.robots)
-            refused = await self._assign(request_id, task, assigned)
-            if refused:
-                accepted = [a for a in assigned if a.robot not in refused]
-                await self._stop_robots(request_id, accepted)
-                await asyncio.to_thread(self.view.release, request_id, pairs, "refused")
-                excluded |= set(refused)
-                await self._event(
-                    request_id,
-                    "; ".join(
-                        f"robot {robot} refused the task: {why}" for robot, why in refused.items()
-                    )
-                    + f"; selecting again (attempt {attempt})",
-                )
-                continue
-            selection = selection_json(result, assigned)
-            selection["dispatched_at"] = self.clock()
-            try:
-                record = await asyncio.to_thread(
-                    self.store.transition,
-                    request_id,
-                    "dispatched",
-                    None,
-                    f"{len(assigned)} robot{'s' if len(assigned) != 1 else ''}: "
-                    f"{', '.join(a.robot for a in assigned)}",
-                    selection,
-                )
-            except Conflict:
-                await self._stop_robots(request_id, assigned)
-                await asyncio.to_thread(self.view.release, request_id, pairs, "canceled")
-                raise
-            lost = await asyncio.to_thread(self.view.confirm, request_id, pairs)
-            if lost:
-                await self._event(
-                    request_id,
-                    f"the leases on {', '.join(lost)} could not be "
-                    "made firm; their homes may give them away",
-                )
-            self._track(
-                Tracking(
-                    request_id,
-                    task,
-                    {a.robot: a for a in assigned},
-                    selection["dispatched_at"],
-                    selection,
-                )
-            )
-            self._publish(record)
-            return
-        await self._fail(
-            request_id,
-            f"no coalition could be reserved and dispatched in "
-            f"{self.settings.reselect_attempts} attempts; robots kept being taken "
-            "or refusing",
-        )
-
-    async def _assign(
-        self, request_id: str, task: Task, assigned: Sequence[Assigned]
-    ) -> dict[str, str]:
-        """Send every robot its command; the robots that refused, with why."""
-        commands = [
-            Assign(
-                request_id=request_id,
-                location=list(task.location),
-                capabilities=a.capabilities,
-                execution=task.execution,
-            )
-            for a in assigned
-        ]
-        acks = await asyncio.gather(
-            *(
-                asyncio.to_thread(self.view.assign, a.robot, a.cloud, command)
-                for a, command in zip(assigned, commands, strict=True)
-            )
-        )
-        return {
-            a.robot: ack.error or "no reason given"
-            for a, ack in zip(assigned, acks, strict=True)
-            if not ack.ok
-        }
-
-    async def _stop_robots(self, request_id: str, robots: Sequence[Assigned]) -> None:
-        """Stop the robots; at other clouds this also releases them."""
-        await asyncio.gather(
-            *(asyncio.to_thread(self.view.cancel, a.robot, a.cloud, request_id) for a in robots)
-        )
-
-    async def _event(self, request_id: str, detail: str) -> None:
-        record = await asyncio.to_thread(self.store.add_event, request_id, detail)
-        self._publish(record)
-
-    async def _fail(self, request_id: str, reason: str) -> None:
-        tracking = self._forget(request_id)
-        try:
-            record = await asyncio.to_thread(self.store.transition, request_id, "failed", reason)
-        except RoboCloudError:
-            return  # already final
-        self._publish(record)
-        if tracking is not None:
-            await self._stop_robots(request_id, list(tracking.robots.values()))
-
-    # -- tracking dispatched requests -----------------------------------------
-
-    def _track(self, tracking: Tracking) -> None:
-        self._tracking[tracking.request_id] = tracking
-        for robot, assigned in tracking.robots.items():
-            self._robot_request[robot] = tracking.request_id
-            assigned.watched_at = self.clock()
-            self.view.watch(robot, assigned.cloud)
-
-    def _forget(self, request_id: str) -> Tracking | None:
-        tracking = self._tracking.pop(request_id, None)
-        if tracking is not None:
-            for robot, assigned in tracking.robots.items():
-                if self._robot_request.get(robot) == request_id:
-                    del self._robot_request[robot]
-                self.view.unwatch(robot, assigned.cloud)
-        return tracking
+    def _forget_routes(self, request_id: str) -> None:
+        for robot in [r for r, rid in self._routes.items() if rid == request_id]:
+            del self._routes[robot]
 
     def _state_from_thread(self, state: State) -> None:
-        """Called on Zenoh's thread for every state message; hops to the loop."""
-        if self._loop is not None and state.id in self._robot_request:
-            self._loop.call_soon_threadsafe(self._on_state, state)
+        """Called on Zenoh's threads for every state message; hops to the loop when it matters."""
+        loop = self._loop
+        if loop is None:
+            return
+        working = state.task is not None and state.task.phase in WORKING
+        if state.id in self._routes or (working and state.cloud == self.settings.cloud):
+            loop.call_soon_threadsafe(self._on_state, state)
 
     def _on_state(self, state: State) -> None:
-        request_id = self._robot_request.get(state.id)
-        tracking = self._tracking.get(request_id) if request_id else None
-        if tracking is None or request_id is None:
+        request_id = self._routes.get(state.id)
+        if request_id is not None:
+            self._post(request_id, report_for(state, request_id))
+        task = state.task
+        if (
+            task is not None
+            and task.phase in WORKING
+            and state.cloud == self.settings.cloud
+            and task.request_id != request_id
+        ):
+            self._tell_to_stop(state.id, task.request_id)
+
+    def _tell_to_stop(self, robot: str, request_id: str) -> None:
+        now = time.monotonic()
+        key = (robot, request_id)
+        if now - self._told.get(key, -TELL_AGAIN_AFTER) < TELL_AGAIN_AFTER:
             return
-        assigned = tracking.robots.get(state.id)
-        if assigned is None:
-            return
-        mine = state.task is not None and state.task.request_id == request_id
-        if mine and state.task is not None and assigned.phase != "done":
-            assigned.confirmed = True
-            phase = state.task.phase
-            # A finished task lingers in the state while the robot goes on
-            # with its life (it may go offline once done): only a robot that
-            # has not finished can fail.
-            if phase == "failed" or (state.status == "offline" and phase != "done"):
-                self._spawn(
-                    self._robot_failed(
-                        request_id,
-                        state.id,
-                        "its battery died" if state.battery <= 0 else "it went offline",
-                    )
-                )
-                return
-            changed = phase != assigned.phase
-            assigned.phase, assigned.progress = phase, state.task.progress
-            if changed:
-                self._spawn(self._advance(request_id))
+        self._told[key] = now
+        if len(self._told) > 1000:  # bounded: forget what is long past
+            self._told = {k: t for k, t in self._told.items() if now - t < 10 * TELL_AGAIN_AFTER}
+        self._spawn(self._reconcile(robot, request_id), f"telling robot {robot} to stop")
 
-    async def _advance(self, request_id: str) -> None:
-        """Move a dispatched request on when its robots' phases say so."""
-        async with self._lock(request_id):
-            tracking = self._tracking.get(request_id)
-            if tracking is None:
-                return
-            phases = [a.phase for a in tracking.robots.values()]
-            record = await asyncio.to_thread(self.store.get, request_id)
-            if record is None or is_final(record.state):
-                return
-            if all(phase == "done" for phase in phases):
-                if record.state == "dispatched":
-                    record = await asyncio.to_thread(self.store.transition, request_id, "underway")
-                    self._publish(record)
-                self._forget(request_id)
-                record = await asyncio.to_thread(
-                    self.store.transition,
-                    request_id,
-                    "completed",
-                    None,
-                    "every robot finished its part",
-                )
-                self._publish(record)
-            elif record.state == "dispatched" and any(
-                p in ("travel", "work", "done") for p in phases
-            ):
-                record = await asyncio.to_thread(
-                    self.store.transition, request_id, "underway", None, "the robots are moving"
-                )
-                self._publish(record)
-            else:
-                self._publish(record)  # progress only
+    async def _reconcile(self, robot: str, request_id: str) -> None:
+        if await self.blocking(self.lent_for, robot) == request_id:
+            return  # lent to another cloud for that request
+        if self._routes.get(robot) == request_id:
+            return  # followed meanwhile
+        log.warning(
+            "robot %s reports work on request %s, which is not active for it; telling it to stop",
+            robot,
+            request_id,
+        )
+        await self.blocking(self.link.cancel, robot, request_id)
 
-    async def _watch(self) -> None:
-        """Once a second: robots gone silent, and robots lost across a restart."""
-        while True:
-            await asyncio.sleep(0.5)
-            ages = self.view.ages()
-            now = self.clock()
-            for request_id, tracking in list(self._tracking.items()):
-                for robot_id, assigned in list(tracking.robots.items()):
-                    if assigned.phase == "done":
-                        continue
-                    # Silence counts from the later of its latest state and the
-                    # moment this IaaS began to follow it: a remote robot's first
-                    # state may still be on its way, and an old state kept from
-                    # an earlier request says nothing about this one.
-                    since = now - max(self._started_at, assigned.watched_at)
-                    silent = min(ages.get(robot_id, since), since)
-                    if silent > self.settings.offline_after:
-                        self._spawn(
-                            self._robot_failed(
-                                request_id, robot_id, f"it has been silent for {silent:.0f} s"
-                            )
-                        )
-                    elif (
-                        not assigned.confirmed
-                        and tracking.recovered_at is not None
-                        and (now - tracking.recovered_at > self.settings.offline_after)
-                    ):
-                        self._spawn(
-                            self._robot_failed(
-                                request_id,
-                                robot_id,
-                                "it no longer reports this request after the restart",
-                            )
-                        )
-
-    # -- failures and replacement ---------------------------------------------
-
-    async def _robot_failed(self, request_id: str, robot_id: str, why: str) -> None:
-        async with self._lock(request_id):
-            tracking = self._tracking.get(request_id)
-            if tracking is None or robot_id not in tracking.robots:
-                return
-            failed = tracking.robots.pop(robot_id)
-            self._robot_request.pop(robot_id, None)
-            self.view.unwatch(robot_id, failed.cloud)
-            # At another cloud the release may not arrive (the cloud may be the
-            # failure); it reconciles with this one when it is back.
-            await asyncio.to_thread(
-                self.view.release, request_id, [(robot_id, failed.cloud)], f"robot failed: {why}"
-            )
-            await self._event(request_id, f"robot {robot_id} failed: {why}")
-            await self._replace(tracking, failed)
-
-    async def _replace(self, tracking: Tracking, failed: Assigned) -> None:
-        """Select robots for the capabilities the failed robot brought."""
-        request_id, task = tracking.request_id, tracking.task
-        remaining = list(tracking.robots.values())
-        missing = {}
-        for name, need in task.required.items():
-            have = sum(name in a.capabilities for a in remaining)
-            if have < need:
-                missing[name] = need - have
-        if not missing:
-            await self._advance_locked_free(request_id)
-            return
-        elapsed = (self.clock() - tracking.dispatched_at) * self.settings.time_scale
-        time_left = task.max_time - elapsed
-        cost_left = task.max_cost - sum(a.cost for a in remaining)
-        robots_left = task.max_robots - len(remaining)
-        reason = None
-        if time_left <= 0:
-            reason = f"no time is left of max_time {task.max_time:g} s"
-        elif cost_left < 0 or robots_left < 1:
-            reason = "no cost or robot is left within the request's limits"
-        if reason is None:
-            sub = task.model_copy(
-                update={
-                    "sensing": {k: v for k, v in missing.items() if k in task.sensing},
-                    "actuating": {k: v for k, v in missing.items() if k in task.actuating},
-                    "max_robots": robots_left,
-                    "max_cost": cost_left,
-                    "max_time": time_left,
-                }
-            )
-            exclude = set(tracking.robots) | {failed.robot}
-            remote = await self._remote(request_id, sub, exclude)
-            async with self._select_lock:
-                robots = [*self._local(exclude), *remote]
-                result = await asyncio.to_thread(
-                    select,
-                    robots,
-                    sub,
-                    self.settings.optimizer,  # type: ignore[arg-type]
-                    seed=self.settings.seed,
-                )
-                if result.chosen is not None:
-                    home = {robot.id: robot.cloud for robot in robots}
-                    pairs = [(robot, home[robot]) for robot in result.chosen.robots]
-                    taken = await asyncio.to_thread(self.view.reserve, request_id, pairs)
-                    if taken:
-                        result = None  # type: ignore[assignment]
-                        reason = "the replacement robots were taken meanwhile"
-                else:
-                    reason = result.reason
-            if result is not None and result.chosen is not None:
-                new = assignments_for(result, robots, sub, result.chosen.robots)
-                refused = await self._assign(request_id, sub, new)
-                if not refused:
-                    await asyncio.to_thread(self.view.confirm, request_id, pairs)
-                    for a in new:
-                        tracking.robots[a.robot] = a
-                        self._robot_request[a.robot] = request_id
-                        a.watched_at = self.clock()
-                        self.view.watch(a.robot, a.cloud)
-                    tracking.selection.setdefault("replacements", []).append(
-                        {"failed": failed.robot, "by": [a.robot for a in new]}
-                    )
-                    tracking.selection["assignments"] = [
-                        a.to_json() for a in tracking.robots.values()
-                    ]
-                    await asyncio.to_thread(
-                        self.store.set_selection, request_id, tracking.selection
-                    )
-                    await self._event(
-                        request_id,
-                        f"robot {failed.robot} replaced by {', '.join(a.robot for a in new)}",
-                    )
-                    return
-                await self._stop_robots(request_id, new)
-                await asyncio.to_thread(self.view.release, request_id, pairs, "refused")
-                reason = "; ".join(f"robot {r} refused: {w}" for r, w in refused.items())
-        self._forget(request_id)
-        try:
-            record = await asyncio.to_thread(
-                self.store.transition,
-                request_id,
-                "failed",
-                f"robot {failed.robot} failed and no replacement was found: {reason}",
-            )
-        except Conflict:
-            return
-        self._publish(record)
-        await self._stop_robots(request_id, remaining)
-
-    async def _advance_locked_free(self, request_id: str) -> None:
-        self._spawn(self._advance(request_id))
-
-    # -- restart ------------------------------------------------------------
+    # -- restart ------------------------------------------------------------------------
 
     async def _recover(self) -> None:
         """Resume what a previous run of this IaaS left unfinished."""
-        for record in await asyncio.to_thread(self.store.active):
+        for record in await self.blocking(self.store.active):
             if record.application.startswith("cloud:"):
                 continue  # another cloud's request this cloud lends robots to (iaas.home)
-            if record.state in ("received", "selecting"):
-                await asyncio.to_thread(self.store.release, record.id, None)
-                await self._event(record.id, "resumed after a restart of the IaaS")
-                self._spawn(self._run(record.id, resumed=True))
-                continue
-            selection = record.selection or {}
-            assigned = [Assigned(**a, confirmed=False) for a in selection.get("assignments", [])]
-            if not assigned:
-                await self._fail(record.id, "its coalition was lost in a restart of the IaaS")
-                continue
-            tracking = Tracking(
+            life = lc.life_of(
                 record.id,
                 Task.model_validate(record.task),
-                {a.robot: a for a in assigned},
-                float(selection.get("dispatched_at", self.clock())),
-                selection,
-                recovered_at=self.clock(),
+                record.state,
+                record.selection,
+                self._shell.rules,
             )
-            self._track(tracking)
-            await self._event(
-                record.id, "resumed after a restart of the IaaS; waiting for its robots to report"
-            )
+            self._start(record, life, lc.Start(resumed=True))
 
 
-def selection_json(result: SelectionResult, assigned: Sequence[Assigned]) -> dict[str, Any]:
-    """What the store keeps of a selection (opaque JSON to the store)."""
-    return {
-        "chosen": result.chosen.to_json() if result.chosen else None,
-        "assignments": [a.to_json() for a in assigned],
-        "pareto": [c.to_json() for c in result.pareto],
-        "optimizer": result.optimizer,
-        "elapsed_ms": round(result.elapsed_ms, 3),
-        "candidates": result.candidates,
-    }
+def report_for(state: State, request_id: str) -> lc.RobotReport:
+    """A robot's state, read for one request."""
+    task, last = state.task, state.last_task
+    return lc.RobotReport(
+        robot=state.id,
+        status=state.status,
+        battery=state.battery,
+        phase=task.phase if task is not None and task.request_id == request_id else None,
+        progress=task.progress if task is not None and task.request_id == request_id else 0.0,
+        last_phase=last.phase if last is not None and last.request_id == request_id else None,
+    )

@@ -11,11 +11,11 @@ import builtins
 from collections.abc import Sequence
 from typing import Any, Protocol
 
-from robocloud.errors import RoboCloudError
+from robocloud.errors import Unavailable
 from robocloud.storage.records import RequestRecord
 
 
-class StoreUnavailable(RoboCloudError):
+class StoreUnavailable(Unavailable):
     """The database cannot be reached or opened; the sentence names it (without password)."""
 
     def __init__(self, message: str, url: str | None = None) -> None:

@@ -1,0 +1,325 @@
+"""One actor per active request: an asyncio task with an inbox that carries out ``decide``.
+
+The actor is the thin shell around ``robocloud.iaas.lifecycle``: it takes one
+event at a time from its inbox (robot reports, the results of its own
+operations, the application's cancel, a tick about twice a second), asks
+``decide`` what to do, and carries out the effects in order. Effects that wait
+on other parties (a selection, reservations, the robots' acknowledgements,
+stop commands) run as operations the actor owns: their results come back
+through the inbox, so a cancel is handled while a selection is still running.
+The actor ends once its request is final and none of its operations is left;
+an error it cannot carry on from fails the request with a reason.
+
+Writes to the store are retried while the store is unavailable (with a
+growing pause, up to 5 s): a state change is never skipped, only delayed.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from collections.abc import Awaitable, Callable, Coroutine, Iterable, Sequence
+from dataclasses import dataclass
+from typing import Any, Protocol, TypeVar
+
+from robocloud.domain import Robot, Task
+from robocloud.errors import Conflict, Unavailable
+from robocloud.federation.view import FederationView
+from robocloud.fleet.messages import Assign as AssignCommand
+from robocloud.iaas import lifecycle as lc
+from robocloud.selection.problem import robot_terms
+from robocloud.selection.result import SelectionResult
+from robocloud.storage import RequestRecord, RequestStore
+
+log = logging.getLogger(__name__)
+
+T = TypeVar("T")
+TICK = 0.5  # seconds between two ticks of an actor
+STORE_RETRY_MAX = 5.0  # seconds, the longest pause between two tries of a store write
+
+
+class Selector(Protocol):
+    """Runs the selection pipeline for a task over the robots in view."""
+
+    def __call__(self, robots: list[Robot], task: Task) -> Awaitable[SelectionResult]: ...
+
+
+@dataclass
+class Shell:
+    """What every actor of one IaaS shares: the I/O parts and the supervisor's hooks."""
+
+    store: RequestStore
+    view: FederationView
+    selector: Selector
+    rules: lc.Rules
+    blocking: Callable[..., Awaitable[Any]]  # run a blocking call on the IaaS's I/O threads
+    follow: Callable[[str, lc.Pairs], None]
+    unfollow: Callable[[str, lc.Pairs], None]
+    publish: Callable[[RequestRecord], None]
+    held: Callable[[], Iterable[str]]  # robots other requests follow right now
+    wall: Callable[[], float] = time.time
+    mono: Callable[[], float] = time.monotonic
+
+
+Reply = asyncio.Future[RequestRecord]
+
+
+class RequestActor:
+    def __init__(self, shell: Shell, life: lc.Life, record: RequestRecord) -> None:
+        self.shell = shell
+        self.life = life
+        self.record = record
+        self.inbox: asyncio.Queue[tuple[lc.Event | None, Reply | None]] = asyncio.Queue()
+        self._ops: set[asyncio.Task[None]] = set()
+
+    @property
+    def request_id(self) -> str:
+        return self.life.request_id
+
+    def post(self, event: lc.Event, reply: Reply | None = None) -> None:
+        """Hand the actor an event (on the event loop's thread)."""
+        self.inbox.put_nowait((event, reply))
+
+    async def run(self, start: lc.Start) -> None:
+        replies: list[Reply] = []
+        try:
+            await self._handle(start)
+            next_tick = self.shell.mono() + TICK
+            while not (self.life.final and not self._ops and self.inbox.empty()):
+                wait = max(0.0, next_tick - self.shell.mono())
+                try:
+                    event, reply = await asyncio.wait_for(self.inbox.get(), wait)
+                except TimeoutError:
+                    event, reply = lc.Tick(), None
+                if event is not None:
+                    await self._handle(event)
+                if reply is not None:
+                    replies.append(reply)
+                    _answer(reply, self.record)
+                if self.shell.mono() >= next_tick:
+                    next_tick = self.shell.mono() + TICK
+                    if not isinstance(event, lc.Tick):
+                        await self._handle(lc.Tick())
+        except asyncio.CancelledError:
+            raise
+        except Exception as error:
+            log.exception("request %s: its actor failed", self.request_id)
+            await self._crash(error)
+        finally:
+            for op in list(self._ops):
+                op.cancel()
+            await asyncio.gather(*self._ops, return_exceptions=True)
+            while not self.inbox.empty():
+                _, reply = self.inbox.get_nowait()
+                if reply is not None:
+                    _answer(reply, self.record)
+
+    # -- events and effects ----------------------------------------------------------
+
+    async def _handle(self, event: lc.Event) -> None:
+        now = lc.Now(self.shell.mono(), self.shell.wall())
+        self.life, effects = lc.decide(self.life, event, now)
+        for effect in effects:
+            await self._carry_out(effect)
+
+    async def _crash(self, error: Exception) -> None:
+        """Fail the request with the error's sentence; every effect is tried, none may raise."""
+        now = lc.Now(self.shell.mono(), self.shell.wall())
+        self.life, effects = lc.decide(
+            self.life, lc.Crashed(str(error) or type(error).__name__), now
+        )
+        for effect in effects:
+            try:
+                await asyncio.wait_for(self._carry_out(effect), 30)
+            except Exception:
+                log.exception("request %s: cleaning up after a failure failed", self.request_id)
+
+    async def _carry_out(self, effect: lc.Effect) -> None:
+        shell, rid = self.shell, self.request_id
+        match effect:
+            case lc.Commit(state, reason, detail, selection):
+                self.record = await self._write(
+                    shell.store.transition,
+                    rid,
+                    state,
+                    reason,
+                    detail,
+                    dict(selection) if selection is not None else None,
+                )
+                shell.publish(self.record)
+            case lc.Note(detail):
+                self.record = await self._write(shell.store.add_event, rid, detail)
+                shell.publish(self.record)
+            case lc.SaveSelection(selection):
+                self.record = await self._write(shell.store.set_selection, rid, dict(selection))
+                shell.publish(self.record)
+            case lc.Publish():
+                shell.publish(self.record)
+            case lc.Select():
+                self._operate(self._select(effect), "selection")
+            case lc.Reserve(robots):
+                self._operate(self._reserve(robots), "reservation")
+            case lc.Assign(members, task):
+                self._operate(self._assign(members, task), "dispatch")
+            case lc.StopRobots(robots):
+                self._operate(self._stop(robots), "stop")
+            case lc.Confirm(robots):
+                lost = await shell.blocking(shell.view.confirm, rid, list(robots))
+                if lost:
+                    await self._carry_out(
+                        lc.Note(
+                            f"the leases on {', '.join(lost)} could not be made firm; "
+                            "their homes may give them away"
+                        )
+                    )
+            case lc.Release(robots, why):
+                await shell.blocking(shell.view.release, rid, list(robots), why)
+            case lc.ReleaseAll():
+                await self._write(shell.store.release, rid, None)
+            case lc.Follow(robots):
+                shell.follow(rid, robots)
+            case lc.Unfollow(robots):
+                shell.unfollow(rid, robots)
+
+    def _operate(self, work: Coroutine[Any, Any, lc.Event | None], what: str) -> None:
+        """Run ``work`` as an operation of this actor; its result comes back as an event."""
+
+        async def operation() -> None:
+            try:
+                event = await work
+            except asyncio.CancelledError:
+                raise
+            except Conflict as error:
+                event = None
+                log.info("request %s moved on during its %s: %s", self.request_id, what, error)
+            except Exception as error:
+                log.exception("request %s: its %s failed", self.request_id, what)
+                event = lc.Crashed(f"{what} failed: {error}")
+            finally:
+                self._ops.discard(task)
+            self.inbox.put_nowait((event, None))  # None still wakes the actor
+
+        task = asyncio.ensure_future(operation())
+        self._ops.add(task)
+
+    async def _write(self, method: Callable[..., T], *args: Any) -> T:
+        """A store write, tried again while the store is unavailable."""
+        pause = 0.2
+        while True:
+            try:
+                result: T = await self.shell.blocking(method, *args)
+                return result
+            except Unavailable as error:
+                log.warning("request %s: %s; trying again in %.1f s", self.request_id, error, pause)
+                await asyncio.sleep(pause)
+                pause = min(pause * 2, STORE_RETRY_MAX)
+
+    # -- operations ---------------------------------------------------------------
+
+    async def _select(self, effect: lc.Select) -> lc.Event:
+        shell = self.shell
+        exclude = set(effect.exclude)
+        gathered = await shell.blocking(shell.view.remote_robots, effect.task, exclude)
+        held = set(shell.held())
+        local = await shell.blocking(shell.view.local_robots, held)
+        robots = [r for r in local if r.id not in exclude] + gathered.robots
+        result = await shell.selector(robots, effect.task)
+        selection = selection_json(result)
+        notes = tuple(gathered.notes)
+        if result.chosen is None:
+            return lc.Selected(None, selection, result.reason, notes)
+        chosen = members_for(robots, effect.task, result.chosen.robots, effect.offset)
+        return lc.Selected(chosen, selection, None, notes)
+
+    async def _reserve(self, robots: lc.Pairs) -> lc.Event:
+        pause = 0.2
+        while True:
+            try:
+                taken = await self.shell.blocking(
+                    self.shell.view.reserve, self.request_id, list(robots)
+                )
+                return lc.Reserved(tuple(taken))
+            except Conflict:
+                return lc.Reserved(tuple(r for r, _ in robots))  # the request is over
+            except Unavailable as error:
+                log.warning(
+                    "request %s: %s; reserving again in %.1f s", self.request_id, error, pause
+                )
+                await asyncio.sleep(pause)
+                pause = min(pause * 2, STORE_RETRY_MAX)
+
+    async def _assign(self, members: Sequence[lc.Member], task: Task) -> lc.Event:
+        view = self.shell.view
+        acks = await asyncio.gather(
+            *(
+                self.shell.blocking(
+                    view.assign, m.robot, m.cloud, command_for(self.request_id, m, task)
+                )
+                for m in members
+            )
+        )
+        return lc.Acked(
+            {
+                m.robot: ack.error or "no reason given"
+                for m, ack in zip(members, acks, strict=True)
+                if not ack.ok
+            }
+        )
+
+    async def _stop(self, robots: lc.Pairs) -> None:
+        view = self.shell.view
+        await asyncio.gather(
+            *(
+                self.shell.blocking(view.cancel, robot, cloud, self.request_id)
+                for robot, cloud in robots
+            )
+        )
+
+
+def _answer(reply: Reply, record: RequestRecord) -> None:
+    if not reply.done():
+        reply.set_result(record)
+
+
+def command_for(request_id: str, member: lc.Member, task: Task) -> AssignCommand:
+    return AssignCommand(
+        request_id=request_id,
+        location=list(task.location),
+        capabilities=list(member.capabilities),
+        execution=task.execution,
+    )
+
+
+def members_for(
+    robots: Sequence[Robot], task: Task, ids: Sequence[str], offset: float = 0.0
+) -> tuple[lc.Member, ...]:
+    """The chosen robots with the capabilities each brings, its t_i and c_i."""
+    by_id = {robot.id: robot for robot in robots}
+    chosen = [by_id[i] for i in ids]
+    terms = robot_terms(chosen, task)
+    return tuple(
+        lc.Member(
+            robot=robot.id,
+            cloud=robot.cloud,
+            capabilities=tuple(
+                name for k, name in enumerate(terms.capabilities) if terms.uses[i, k]
+            ),
+            time=float(terms.time[i]),
+            cost=float(terms.cost[i]),
+            offset=offset,
+        )
+        for i, robot in enumerate(chosen)
+    )
+
+
+def selection_json(result: SelectionResult) -> dict[str, Any]:
+    """What the store keeps of a selection (opaque JSON to the store)."""
+    return {
+        "chosen": result.chosen.to_json() if result.chosen else None,
+        "assignments": [],
+        "pareto": [c.to_json() for c in result.pareto],
+        "optimizer": result.optimizer,
+        "elapsed_ms": round(result.elapsed_ms, 3),
+        "candidates": result.candidates,
+    }

@@ -352,8 +352,8 @@ def decide(life: Life, event: Event, now: Now) -> Step:
 
 
 def _on_start(life: Life, event: Start, now: Now) -> Step:
-    if life.final:
-        return life, []
+    if life.final or life.attempt is not None:
+        return life, []  # over, or started already
     if life.state in ("dispatched", "underway"):
         if not life.members:
             return _end(life, "failed", reason="its coalition was lost in a restart of the IaaS")

@@ -272,9 +272,12 @@ def test_a_replacement_updates_the_coalition_now() -> None:
 def test_after_a_restart_a_robot_that_does_not_report_the_request_fails() -> None:
     life, _ = lc.decide(SITUATIONS["underway"], lc.Start(resumed=True), NOW)
     other = lc.RobotReport("a-1", "idle", 70.0)
-    quiet, effects = lc.decide(life, other, lc.Now(NOW.mono + 1.0, NOW.wall + 1.0))
-    assert effects == []  # within the grace: its state may still be on its way
-    late = lc.Now(NOW.mono + 6.0, NOW.wall + 6.0)
+    # Within the restart's grace (10 s): the robot may still be reconnecting.
+    quiet, effects = lc.decide(life, other, lc.Now(NOW.mono + 6.0, NOW.wall + 6.0))
+    assert effects == []
+    _, effects = lc.decide(quiet, lc.Tick(), lc.Now(NOW.mono + 9.0, NOW.wall + 9.0))
+    assert effects == [], "not silent within the grace"
+    late = lc.Now(NOW.mono + 11.0, NOW.wall + 11.0)
     _, effects = lc.decide(quiet, other, late)
     note = next(e for e in effects if isinstance(e, lc.Note))
     assert note.detail == "robot a-1 failed: it no longer reports this request after the restart"

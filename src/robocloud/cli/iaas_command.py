@@ -69,6 +69,21 @@ def add_iaas_arguments(parser: argparse.ArgumentParser) -> None:
         help="a robot silent this long is offline (default 5)",
     )
     parser.add_argument(
+        "--ack-timeout",
+        type=float,
+        default=2.0,
+        metavar="SECONDS",
+        help="how long a robot has to acknowledge a command; one that does not is told to "
+        "stop at once (default 2)",
+    )
+    parser.add_argument(
+        "--forget-after",
+        type=float,
+        default=600.0,
+        metavar="SECONDS",
+        help="a robot silent this long is forgotten, no longer listed (default 600)",
+    )
+    parser.add_argument(
         "--time-scale",
         type=float,
         default=1.0,
@@ -87,8 +102,9 @@ def iaas_command(args: argparse.Namespace) -> int:
     from robocloud.iaas.app import create_app
     from robocloud.iaas.config import Settings, parse_api_keys
 
-    if args.offline_after <= 0 or args.time_scale <= 0:
-        raise InvalidInput("--offline-after and --time-scale must be positive.")
+    for flag in ("offline_after", "ack_timeout", "forget_after", "time_scale"):
+        if not getattr(args, flag) > 0:
+            raise InvalidInput(f"--{flag.replace('_', '-')} must be a positive number.", flag)
     keys = parse_api_keys(",".join(args.api_key))
     settings = Settings.from_env(
         args.cloud,
@@ -101,6 +117,8 @@ def iaas_command(args: argparse.Namespace) -> int:
         api_keys=keys,
         optimizer=args.optimizer,
         offline_after=args.offline_after,
+        ack_timeout=args.ack_timeout,
+        forget_after=args.forget_after,
         time_scale=args.time_scale,
         overlay_security=security.from_arguments(args),
     )

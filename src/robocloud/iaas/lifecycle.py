@@ -64,6 +64,9 @@ class Rules:
     offline_after: float = 5.0  # seconds of silence before a working robot has failed
     attempts: int = 8  # selections per dispatch or replacement when robots are taken or refuse
     time_scale: float = 1.0  # robot seconds per wall second (the simulator's speedup)
+    # After a restart of the IaaS its robots must first reconnect (a Zenoh client
+    # retries every 1 to 4 s): none is counted silent before this many seconds.
+    restart_grace: float = 10.0
 
 
 @dataclass(frozen=True)
@@ -357,8 +360,9 @@ def _on_start(life: Life, event: Start, now: Now) -> Step:
     if life.state in ("dispatched", "underway"):
         if not life.members:
             return _end(life, "failed", reason="its coalition was lost in a restart of the IaaS")
+        grace = now.mono + max(0.0, life.rules.restart_grace - life.rules.offline_after)
         members = {
-            r: replace(m, since=now.mono, heard_at=now.mono, confirmed=False)
+            r: replace(m, since=grace, heard_at=grace, confirmed=False)
             for r, m in life.members.items()
         }
         life = replace(life, members=members, resumed=True)

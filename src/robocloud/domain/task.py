@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic.config import JsonDict
 
 from robocloud.domain.robot import Name, Position
 
@@ -24,8 +25,20 @@ Execution = Literal["parallel", "sequential"]
 CRITERIA_IMPORTANCE: dict[str, int] = {"balanced": 0, "time": 1, "cost": 2}
 
 
+# The rule "at least one capability", for readers of the JSON Schema (the
+# validator below enforces it, with the rule that no name is in both).
+AT_LEAST_ONE_CAPABILITY: JsonDict = {
+    "anyOf": [
+        {"required": ["sensing"], "properties": {"sensing": {"minProperties": 1}}},
+        {"required": ["actuating"], "properties": {"actuating": {"minProperties": 1}}},
+    ]
+}
+
+
 class Task(BaseModel):
-    model_config = ConfigDict(strict=True, extra="forbid", frozen=True)
+    model_config = ConfigDict(
+        strict=True, extra="forbid", frozen=True, json_schema_extra=AT_LEAST_ONE_CAPABILITY
+    )
 
     location: Position = Field(description="[x, y] in metres")
     sensing: dict[Name, Count] = Field(default_factory=dict)

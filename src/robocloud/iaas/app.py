@@ -9,13 +9,16 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import json
 import logging
 from collections.abc import AsyncIterator, Mapping
 from typing import Annotated, Any, Literal
 
 from fastapi import Depends, FastAPI, Header, Path, Query, Request, Response, Security
 from fastapi.exceptions import RequestValidationError
+from fastapi.openapi.utils import get_openapi
 from fastapi.responses import JSONResponse
+from fastapi.routing import APIRoute
 from fastapi.security import HTTPBearer
 from fastapi.sse import EventSourceResponse, ServerSentEvent
 from starlette.datastructures import Headers
@@ -155,8 +158,46 @@ def create_app(
     app.state.settings = settings
     _install_error_handlers(app)
     app.add_middleware(Gate, keys=settings.api_keys, limit=settings.max_body_bytes)
-    app.include_router(_routes())
+    routes = _routes()
+    app.include_router(routes)
+    app.state.routes = [r for r in routes.routes if isinstance(r, APIRoute)]
+    app.openapi = lambda: _openapi(app)  # type: ignore[method-assign]
     return app
+
+
+def _openapi(app: FastAPI) -> dict[str, Any]:
+    """FastAPI's OpenAPI, with only the answers each operation really gives.
+
+    FastAPI adds a 422 (in its own error shape) to every operation with a
+    parameter; here each operation lists the codes it declares (``answers``)
+    and its success, and every error is an ``ErrorBody``.
+    """
+    if app.openapi_schema is None:
+        spec = get_openapi(
+            title=app.title,
+            version=app.version,
+            description=app.description,
+            routes=app.routes,
+        )
+        routes: list[APIRoute] = app.state.routes
+        for route in routes:
+            success = str(route.status_code or 200)
+            for method in route.methods or ():
+                operation = spec["paths"][route.path_format].get(method.lower())
+                if operation is None:
+                    continue
+                declared = {str(code) for code in route.responses} | {success}
+                operation["responses"] = {
+                    code: answer
+                    for code, answer in operation["responses"].items()
+                    if code in declared
+                }
+        schemas = spec.get("components", {}).get("schemas", {})
+        for unused in ("HTTPValidationError", "ValidationError"):
+            if f"#/components/schemas/{unused}" not in json.dumps(spec["paths"]):
+                schemas.pop(unused, None)
+        app.openapi_schema = spec
+    return app.openapi_schema
 
 
 def service_of(request: Request) -> RequestService:
@@ -184,6 +225,7 @@ def authenticate(authorization: str | None, keys: Mapping[str, str]) -> str:
 
 # Declares the scheme in the OpenAPI; the Gate does the checking.
 BEARER = HTTPBearer(auto_error=False, description="the application's API key")
+SECURED = [Security(BEARER)]
 RequestId = Annotated[str, Path(description="a request's id, e.g. req-abcdefgh2345")]
 
 
@@ -205,7 +247,7 @@ def _routes() -> Any:
     from fastapi import APIRouter
 
     router = APIRouter()
-    api = APIRouter(dependencies=[Security(BEARER)])
+    api = router  # the /v1 routes declare the bearer scheme one by one (SECURED)
 
     @router.get("/healthz", response_model=Health, tags=["service"])
     async def health(service: Service) -> Health:
@@ -219,6 +261,7 @@ def _routes() -> Any:
 
     @api.post(
         "/v1/requests",
+        dependencies=SECURED,
         status_code=202,
         response_model=RequestPublic,
         tags=["requests"],
@@ -245,6 +288,7 @@ def _routes() -> Any:
 
     @api.get(
         "/v1/requests",
+        dependencies=SECURED,
         response_model=RequestList,
         tags=["requests"],
         responses=answers(401, 422, 503),
@@ -275,6 +319,7 @@ def _routes() -> Any:
 
     @api.get(
         "/v1/requests/{request_id}",
+        dependencies=SECURED,
         response_model=RequestPublic,
         tags=["requests"],
         responses=answers(401, 404, 503),
@@ -286,6 +331,7 @@ def _routes() -> Any:
 
     @api.post(
         "/v1/requests/{request_id}/cancel",
+        dependencies=SECURED,
         response_model=RequestPublic,
         tags=["requests"],
         responses=answers(401, 404, 409, 503),
@@ -298,6 +344,7 @@ def _routes() -> Any:
 
     @api.get(
         "/v1/requests/{request_id}/events",
+        dependencies=SECURED,
         response_class=EventSourceResponse,
         tags=["requests"],
         responses=answers(401, 404, 503),
@@ -316,6 +363,7 @@ def _routes() -> Any:
 
     @api.get(
         "/v1/robots",
+        dependencies=SECURED,
         response_model=list[RobotPublic],
         tags=["robots"],
         responses=answers(401, 422),
@@ -344,6 +392,7 @@ def _routes() -> Any:
 
     @api.get(
         "/v1/clouds",
+        dependencies=SECURED,
         response_model=list[CloudInfo],
         tags=["federation"],
         responses=answers(401),
@@ -357,8 +406,16 @@ def _routes() -> Any:
             return [service.home_info()]
         return await asyncio.to_thread(overlay.infos)
 
-    router.include_router(api)
     return router
+
+
+def allowed_methods(request: Request) -> list[str]:
+    routes: list[APIRoute] = request.app.state.routes
+    methods: set[str] = set()
+    for route in routes:
+        if route.path_regex.match(request.url.path):
+            methods |= route.methods or set()
+    return sorted(methods)
 
 
 def _install_error_handlers(app: FastAPI) -> None:
@@ -380,13 +437,17 @@ def _install_error_handlers(app: FastAPI) -> None:
             sentence = "the request body is missing: send a JSON task."
         return JSONResponse({"detail": sentence}, status_code=422)
 
-    async def http_error(_: Request, error: Exception) -> JSONResponse:
+    async def http_error(request: Request, error: Exception) -> JSONResponse:
         assert isinstance(error, StarletteHTTPException)
         text = {404: "there is no such path.", 405: "this method is not allowed here."}.get(
             error.status_code, str(error.detail)
         )
-        # A 405 names the methods that are allowed (Allow), as HTTP asks.
-        return JSONResponse({"detail": text}, status_code=error.status_code, headers=error.headers)
+        headers = dict(error.headers or {})
+        if error.status_code == 405:
+            # Allow names every method of the path, as HTTP asks (Starlette
+            # names those of the first route that matched the path only).
+            headers["Allow"] = ", ".join(allowed_methods(request))
+        return JSONResponse({"detail": text}, status_code=error.status_code, headers=headers)
 
     async def unexpected(_: Request, error: Exception) -> JSONResponse:
         log.exception("unexpected error", exc_info=error)

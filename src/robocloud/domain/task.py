@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, model_validator
 from pydantic.config import JsonDict
 
 from robocloud.domain.robot import Name, Position
@@ -17,7 +17,16 @@ MAX_ROBOTS = 100_000
 MAX_COST = 1e12
 MAX_TIME = 1e9  # seconds (about 31 years)
 
-Count = Annotated[int, Field(ge=1, le=MAX_COUNT)]
+
+
+def _integral(value: object) -> object:
+    """3.0 is the integer 3, as JSON Schema's ``integer`` says; 3.5 stays a float (refused)."""
+    if isinstance(value, float) and value.is_integer():
+        return int(value)
+    return value
+
+
+Count = Annotated[int, Field(ge=1, le=MAX_COUNT), BeforeValidator(_integral)]
 Priority = Literal["balanced", "time", "cost"]
 Execution = Literal["parallel", "sequential"]
 
@@ -25,25 +34,41 @@ Execution = Literal["parallel", "sequential"]
 CRITERIA_IMPORTANCE: dict[str, int] = {"balanced": 0, "time": 1, "cost": 2}
 
 
-# The rule "at least one capability", for readers of the JSON Schema (the
-# validator below enforces it, with the rule that no name is in both).
-AT_LEAST_ONE_CAPABILITY: JsonDict = {
-    "anyOf": [
+def _task_schema(schema: JsonDict) -> None:
+    """The JSON Schema says what the validators check, for clients and fuzzers.
+
+    The rule "at least one capability" (the validator below enforces it, with
+    the rule that no name is in both), and the capability names' pattern as a
+    rule on the names (pydantic writes it as ``patternProperties``, which
+    would let names that do not match through).
+    """
+    schema["anyOf"] = [
         {"required": ["sensing"], "properties": {"sensing": {"minProperties": 1}}},
         {"required": ["actuating"], "properties": {"actuating": {"minProperties": 1}}},
     ]
-}
+    properties = schema["properties"]
+    assert isinstance(properties, dict)
+    for kind in ("sensing", "actuating"):
+        counts = properties[kind]
+        assert isinstance(counts, dict)
+        patterns = counts.pop("patternProperties", None)
+        if isinstance(patterns, dict) and len(patterns) == 1:
+            [(pattern, value)] = patterns.items()
+            names = counts.setdefault("propertyNames", {})
+            assert isinstance(names, dict)
+            names["pattern"] = pattern
+            counts["additionalProperties"] = value
 
 
 class Task(BaseModel):
     model_config = ConfigDict(
-        strict=True, extra="forbid", frozen=True, json_schema_extra=AT_LEAST_ONE_CAPABILITY
+        strict=True, extra="forbid", frozen=True, json_schema_extra=_task_schema
     )
 
     location: Position = Field(description="[x, y] in metres")
     sensing: dict[Name, Count] = Field(default_factory=dict)
     actuating: dict[Name, Count] = Field(default_factory=dict)
-    max_robots: Annotated[int, Field(ge=1, le=MAX_ROBOTS)]
+    max_robots: Annotated[int, Field(ge=1, le=MAX_ROBOTS), BeforeValidator(_integral)]
     max_cost: Annotated[float, Field(ge=0.0, le=MAX_COST, allow_inf_nan=False)]
     max_time: Annotated[float, Field(ge=0.0, le=MAX_TIME, allow_inf_nan=False)] = Field(
         description="seconds"

@@ -180,6 +180,7 @@ def _openapi(app: FastAPI) -> dict[str, Any]:
             routes=app.routes,
         )
         routes: list[APIRoute] = app.state.routes
+        error_body = {"application/json": {"schema": {"$ref": "#/components/schemas/ErrorBody"}}}
         for route in routes:
             success = str(route.status_code or 200)
             for method in route.methods or ():
@@ -192,6 +193,9 @@ def _openapi(app: FastAPI) -> dict[str, Any]:
                     for code, answer in operation["responses"].items()
                     if code in declared
                 }
+                for code, answer in operation["responses"].items():
+                    if code != success:  # errors are JSON, even beside an event stream
+                        answer["content"] = error_body
         schemas = spec.get("components", {}).get("schemas", {})
         for unused in ("HTTPValidationError", "ValidationError"):
             if f"#/components/schemas/{unused}" not in json.dumps(spec["paths"]):
@@ -226,6 +230,15 @@ def authenticate(authorization: str | None, keys: Mapping[str, str]) -> str:
 # Declares the scheme in the OpenAPI; the Gate does the checking.
 BEARER = HTTPBearer(auto_error=False, description="the application's API key")
 SECURED = [Security(BEARER)]
+# What a client (and a fuzzer) can do next with the request a POST made.
+REQUEST_LINKS = {
+    name: {"operationId": operation, "parameters": {"request_id": "$response.body#/id"}}
+    for name, operation in (
+        ("GetRequest", "get_request"),
+        ("CancelRequest", "cancel_request"),
+        ("FollowRequest", "request_events"),
+    )
+}
 RequestId = Annotated[str, Path(description="a request's id, e.g. req-abcdefgh2345")]
 
 
@@ -249,7 +262,7 @@ def _routes() -> Any:
     router = APIRouter()
     api = router  # the /v1 routes declare the bearer scheme one by one (SECURED)
 
-    @router.get("/healthz", response_model=Health, tags=["service"])
+    @router.get("/healthz", response_model=Health, tags=["service"], operation_id="health")
     async def health(service: Service) -> Health:
         return Health(
             status="ok",
@@ -265,7 +278,8 @@ def _routes() -> Any:
         status_code=202,
         response_model=RequestPublic,
         tags=["requests"],
-        responses=answers(401, 413, 422, 503),
+        operation_id="create_request",
+        responses={**answers(401, 413, 422, 503), 202: {"links": REQUEST_LINKS}},
     )
     async def create_request(
         body: RequestCreate,
@@ -290,6 +304,7 @@ def _routes() -> Any:
         "/v1/requests",
         dependencies=SECURED,
         response_model=RequestList,
+        operation_id="list_requests",
         tags=["requests"],
         responses=answers(401, 422, 503),
     )
@@ -303,15 +318,11 @@ def _routes() -> Any:
         before: Annotated[
             str | None,
             Query(
-                max_length=64, description="the `next` cursor of the previous page (a request id)"
+                pattern=REQUEST_ID.pattern,
+                description="the `next` cursor of the previous page (a request id)",
             ),
         ] = None,
     ) -> RequestList:
-        if before is not None and not REQUEST_ID.fullmatch(before):
-            raise InvalidInput(
-                f"before={before!r} is not a request id; pass the `next` of the previous page.",
-                "before",
-            )
         records, cursor = await service.blocking(
             service.store.list, application, state, limit, before
         )
@@ -320,6 +331,7 @@ def _routes() -> Any:
     @api.get(
         "/v1/requests/{request_id}",
         dependencies=SECURED,
+        operation_id="get_request",
         response_model=RequestPublic,
         tags=["requests"],
         responses=answers(401, 404, 503),
@@ -332,6 +344,7 @@ def _routes() -> Any:
     @api.post(
         "/v1/requests/{request_id}/cancel",
         dependencies=SECURED,
+        operation_id="cancel_request",
         response_model=RequestPublic,
         tags=["requests"],
         responses=answers(401, 404, 409, 503),
@@ -345,6 +358,7 @@ def _routes() -> Any:
     @api.get(
         "/v1/requests/{request_id}/events",
         dependencies=SECURED,
+        operation_id="request_events",
         response_class=EventSourceResponse,
         tags=["requests"],
         responses=answers(401, 404, 503),
@@ -364,6 +378,7 @@ def _routes() -> Any:
     @api.get(
         "/v1/robots",
         dependencies=SECURED,
+        operation_id="list_robots",
         response_model=list[RobotPublic],
         tags=["robots"],
         responses=answers(401, 422),
@@ -393,6 +408,7 @@ def _routes() -> Any:
     @api.get(
         "/v1/clouds",
         dependencies=SECURED,
+        operation_id="list_clouds",
         response_model=list[CloudInfo],
         tags=["federation"],
         responses=answers(401),
@@ -443,6 +459,12 @@ def _install_error_handlers(app: FastAPI) -> None:
             error.status_code, str(error.detail)
         )
         headers = dict(error.headers or {})
+        if error.status_code == 400:
+            # FastAPI's answer to a body it cannot decode (not UTF-8, say).
+            return JSONResponse(
+                {"detail": "the body could not be read: send a JSON task in UTF-8."},
+                status_code=422,
+            )
         if error.status_code == 405:
             # Allow names every method of the path, as HTTP asks (Starlette
             # names those of the first route that matched the path only).

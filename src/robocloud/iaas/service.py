@@ -38,7 +38,7 @@ from robocloud.storage import RequestRecord, RequestStore
 log = logging.getLogger(__name__)
 
 T = TypeVar("T")
-REQUEST_ID = re.compile(r"req-[a-z2-7]{12}")
+REQUEST_ID = re.compile(r"^req-[a-z2-7]{12}$")
 WORKING = frozenset({"travel", "work"})
 TELL_AGAIN_AFTER = 1.0  # seconds between two stop commands to a robot for one request
 IO_THREADS = 64  # blocking calls at once: robots' acks, other clouds, the store

@@ -1,0 +1,60 @@
+"""schemathesis against a live IaaS with simulated robots: every check, every phase.
+
+Bounded to about a minute (``--max-time``) with a fixed seed, so a run is
+repeatable. What the fuzzer must not find: a server error, a response that
+breaks the OpenAPI (status code, content type, headers, schema), or data the
+schema allows that the API refuses (with the two documented exceptions in
+``schemathesis.toml``).
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from processes import API_KEY, Cloud
+
+pytestmark = pytest.mark.slow
+
+CONFIG = Path(__file__).with_name("schemathesis.toml")
+
+
+def test_schemathesis_finds_nothing(tmp_path: Path) -> None:
+    cloud = Cloud("cloud-a", tmp_path, f"sqlite:///{tmp_path / 'fuzz.db'}", robots=20, speedup=50.0)
+    cloud.start()
+    try:
+        run = subprocess.run(
+            [
+                str(Path(sys.executable).with_name("schemathesis")),
+                "--config-file",
+                str(CONFIG),
+                "run",
+                f"{cloud.url}/openapi.json",
+                "--header",
+                f"Authorization: Bearer {API_KEY}",
+                "--checks",
+                "all",
+                "--phases",
+                "examples,coverage,fuzzing,stateful",
+                "--max-time",
+                "60",
+                "--seed",
+                "20261129",
+                "--workers",
+                "1",
+                "--request-timeout",
+                "10",
+            ],
+            capture_output=True,
+            text=True,
+            timeout=240,
+            cwd=tmp_path,
+        )
+    finally:
+        cloud.stop()
+    log = (tmp_path / "cloud-a-iaas.log").read_text()
+    assert run.returncode == 0, run.stdout[-6000:] + run.stderr[-2000:]
+    assert "No issues found" in run.stdout, run.stdout[-3000:]
+    assert "Traceback" not in log, log[-3000:]

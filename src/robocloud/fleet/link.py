@@ -22,6 +22,7 @@ import pydantic
 import zenoh
 
 from robocloud.domain import Robot
+from robocloud.errors import Unavailable
 from robocloud.fleet import keys
 from robocloud.fleet.messages import Ack, Assign, Cancel, State
 
@@ -89,6 +90,7 @@ class LatestStates:
         self._lock = threading.Lock()
         self._pruned_at = clock()
         self._refused = 0  # states of new robots refused since the fleet was full
+        self._unavailable_said = -1e9
         self._states: dict[str, State] = {}
         self._received: dict[str, float] = {}
         self._listeners: list[StateListener] = []
@@ -133,6 +135,12 @@ class LatestStates:
         for listener in listeners:
             try:
                 listener(state)
+            except Unavailable as error:
+                # A store that is down fails every state for a while: say it
+                # once every few seconds, without a traceback.
+                if now - self._unavailable_said > 5.0:
+                    self._unavailable_said = now
+                    logger.warning("a robot state listener could not go on: %s", error)
             except Exception:
                 logger.exception("a robot state listener failed")
         return True

@@ -19,7 +19,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
-from collections.abc import Awaitable, Callable, Coroutine, Iterable, Sequence
+from collections.abc import Awaitable, Callable, Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol, TypeVar
 
@@ -157,13 +157,13 @@ class RequestActor:
             case lc.Publish():
                 shell.publish(self.record)
             case lc.Select():
-                self._operate(self._select(effect), "selection")
+                self._operate(lambda: self._select(effect), "selection")
             case lc.Reserve(robots):
-                self._operate(self._reserve(robots), "reservation")
+                self._operate(lambda: self._reserve(robots), "reservation")
             case lc.Assign(members, task):
-                self._operate(self._assign(members, task), "dispatch")
+                self._operate(lambda: self._assign(members, task), "dispatch")
             case lc.StopRobots(robots):
-                self._operate(self._stop(robots), "stop")
+                self._operate(lambda: self._stop(robots), "stop")
             case lc.Confirm(robots):
                 lost = await shell.blocking(shell.view.confirm, rid, list(robots))
                 if lost:
@@ -182,12 +182,16 @@ class RequestActor:
             case lc.Unfollow(robots):
                 shell.unfollow(rid, robots)
 
-    def _operate(self, work: Coroutine[Any, Any, lc.Event | None], what: str) -> None:
-        """Run ``work`` as an operation of this actor; its result comes back as an event."""
+    def _operate(self, work: Callable[[], Awaitable[lc.Event | None]], what: str) -> None:
+        """Run ``work()`` as an operation of this actor; its result comes back as an event.
+
+        Operations only read the store or write it all or nothing, so one
+        that finds the store unavailable runs again once it may be back.
+        """
 
         async def operation() -> None:
             try:
-                event = await work
+                event = await self._again_while_unavailable(work, what)
             except asyncio.CancelledError:
                 raise
             except Conflict as error:
@@ -205,13 +209,23 @@ class RequestActor:
 
     async def _write(self, method: Callable[..., T], *args: Any) -> T:
         """A store write, tried again while the store is unavailable."""
+        return await self._again_while_unavailable(
+            lambda: self.shell.blocking(method, *args), "store write"
+        )
+
+    async def _again_while_unavailable(self, work: Callable[[], Awaitable[T]], what: str) -> T:
         pause = 0.2
         while True:
             try:
-                result: T = await self.shell.blocking(method, *args)
-                return result
+                return await work()
             except Unavailable as error:
-                log.warning("request %s: %s; trying again in %.1f s", self.request_id, error, pause)
+                log.warning(
+                    "request %s: %s; its %s runs again in %.1f s",
+                    self.request_id,
+                    error,
+                    what,
+                    pause,
+                )
                 await asyncio.sleep(pause)
                 pause = min(pause * 2, STORE_RETRY_MAX)
 
@@ -233,21 +247,13 @@ class RequestActor:
         return lc.Selected(chosen, selection, None, notes)
 
     async def _reserve(self, robots: lc.Pairs) -> lc.Event:
-        pause = 0.2
-        while True:
-            try:
-                taken = await self.shell.blocking(
-                    self.shell.view.reserve, self.request_id, list(robots)
-                )
-                return lc.Reserved(tuple(taken))
-            except Conflict:
-                return lc.Reserved(tuple(r for r, _ in robots))  # the request is over
-            except Unavailable as error:
-                log.warning(
-                    "request %s: %s; reserving again in %.1f s", self.request_id, error, pause
-                )
-                await asyncio.sleep(pause)
-                pause = min(pause * 2, STORE_RETRY_MAX)
+        try:
+            taken = await self.shell.blocking(
+                self.shell.view.reserve, self.request_id, list(robots)
+            )
+        except Conflict:
+            return lc.Reserved(tuple(r for r, _ in robots))  # the request is over
+        return lc.Reserved(tuple(taken))
 
     async def _assign(self, members: Sequence[lc.Member], task: Task) -> lc.Event:
         view = self.shell.view

@@ -22,7 +22,7 @@ from collections.abc import Callable, Iterable
 from typing import Protocol
 
 from robocloud.domain import is_final
-from robocloud.errors import Conflict, RoboCloudError
+from robocloud.errors import Conflict, RoboCloudError, Unavailable
 from robocloud.federation.messages import (
     CloudInfo,
     Dispatch,
@@ -321,6 +321,8 @@ class Home:
         while True:
             try:
                 await asyncio.to_thread(self.reconcile)
+            except Unavailable as error:
+                log.warning("reconciliation waits for the store: %s", error)
             except Exception:
                 log.exception("reconciliation failed")
             await asyncio.sleep(every)

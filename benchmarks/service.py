@@ -28,6 +28,7 @@ import sys
 import threading
 import time
 from collections.abc import Iterator
+from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
 from typing import Any
@@ -51,14 +52,26 @@ def _port() -> int:
     return port
 
 
+@dataclass
+class Running:
+    """Clouds started by ``clouds``: their APIs, Zenoh endpoints, API key and IaaS processes."""
+
+    urls: list[str]
+    endpoints: list[str]
+    key: str
+    iaas: list[subprocess.Popen[bytes]]
+
+
 @contextlib.contextmanager
-def clouds(workdir: Path, counts: list[int]) -> Iterator[tuple[list[str], list[str], str]]:
-    """Start len(counts) clouds (IaaS + simulator); yields (API URLs, Zenoh endpoints, key)."""
+def clouds(workdir: Path, counts: list[int], speedup: float = 1.0) -> Iterator[Running]:
+    """Start len(counts) clouds (IaaS + simulator), robots ``speedup`` times the clock."""
     key = secrets.token_urlsafe(12)
     env = {**os.environ, "ROBOCLOUD_API_KEYS": f"bench={key}"}
     python = [sys.executable, "-m", "robocloud.cli.main"]
     processes: list[subprocess.Popen[bytes]] = []
-    urls, endpoints = [], []
+    urls: list[str] = []
+    endpoints: list[str] = []
+    iaas: list[subprocess.Popen[bytes]] = []
     try:
         for i, n in enumerate(counts):
             name = f"cloud-{'abc'[i]}"
@@ -68,15 +81,17 @@ def clouds(workdir: Path, counts: list[int]) -> Iterator[tuple[list[str], list[s
             processes.append(subprocess.Popen(
                 [*python, "iaas", "--cloud", name, "--listen", f"127.0.0.1:{http}",
                  "--zenoh", endpoint, "--store", f"sqlite:///{workdir / f'{name}.db'}",
-                 "--log-level", "warning", *[a for e in endpoints for a in ("--peer", e)]],
+                 "--time-scale", str(speedup), "--log-level", "warning",
+                 *[a for e in endpoints for a in ("--peer", e)]],
                 stdout=log, stderr=subprocess.STDOUT, env=env))
+            iaas.append(processes[-1])
             urls.append(f"http://127.0.0.1:{http}")
             endpoints.append(endpoint)
             _wait(lambda u=urls[-1]: httpx.get(f"{u}/healthz", timeout=1).status_code == 200, 30)
             log = open(workdir / f"{name}-sim.log", "ab")  # noqa: SIM115
             processes.append(subprocess.Popen(
                 [*python, "sim", "--cloud", name, "--robots", str(n), "--connect", endpoint,
-                 "--seed", str(i), "--no-churn"],
+                 "--seed", str(i), "--no-churn", "--speedup", str(speedup)],
                 stdout=log, stderr=subprocess.STDOUT))
         headers = {"Authorization": f"Bearer {key}"}
         for url, n in zip(urls, counts, strict=True):
@@ -85,7 +100,7 @@ def clouds(workdir: Path, counts: list[int]) -> Iterator[tuple[list[str], list[s
         if len(urls) > 1:
             _wait(lambda: len(httpx.get(f"{urls[0]}/v1/clouds", headers=headers,
                                         timeout=5).json()) == len(urls), 30)
-        yield urls, endpoints, key
+        yield Running(urls, endpoints, key, iaas)
     finally:
         for p in processes:
             p.terminate()
@@ -216,9 +231,9 @@ def run(quick: bool, out: Path) -> SectionReport:
     posts = 30 if quick else 100
     load_seconds = 3.0 if quick else 10.0
     rows: list[dict[str, Any]] = []
-    with clouds(workdir, [1000]) as (urls, _, key):
-        one = post_to_dispatched(urls[0], key, posts)
-        load = get_under_load(urls[0], key, 200.0, load_seconds)
+    with clouds(workdir, [1000]) as running:
+        one = post_to_dispatched(running.urls[0], running.key, posts)
+        load = get_under_load(running.urls[0], running.key, 200.0, load_seconds)
     rows.append({"setup": "1 cloud, 1,000 robots", "what": "POST to dispatched (client)",
                  "n": len(one["client"]), "median": _median(one["client"]),
                  "p99": _p99(one["client"])})
@@ -228,9 +243,9 @@ def run(quick: bool, out: Path) -> SectionReport:
     rows.append({"setup": "1 cloud, 1,000 robots",
                  "what": f"GET state at 200/s ({load['achieved']:.0f}/s achieved)",
                  "n": len(load["ms"]), "median": _median(load["ms"]), "p99": _p99(load["ms"])})
-    with clouds(workdir, [334, 333, 333]) as (urls, endpoints, key):
-        gathers = gather_times(endpoints[0], 50 if quick else 200)
-        fed = post_to_dispatched(urls[0], key, posts)
+    with clouds(workdir, [334, 333, 333]) as running:
+        gathers = gather_times(running.endpoints[0], 50 if quick else 200)
+        fed = post_to_dispatched(running.urls[0], running.key, posts)
     rows.append({"setup": "3 clouds, 1,000 robots", "what": "gather idle robots (3 clouds)",
                  "n": len(gathers), "median": _median(gathers), "p99": _p99(gathers)})
     rows.append({"setup": "3 clouds, 1,000 robots",

@@ -57,8 +57,7 @@ def test_an_assigned_robot_travels_works_and_ends_idle_there() -> None:
 
 def test_refusals_cancel_and_faults() -> None:
     clock = Clock()
-    link = MemoryRobotLink("cloud-a", [robot("a-1"), robot("a-2")], offline_after=5.0,
-                           clock=clock)
+    link = MemoryRobotLink("cloud-a", [robot("a-1"), robot("a-2")], offline_after=5.0, clock=clock)
     assert link.assign("a-1", GO).ok
     busy = link.assign("a-1", GO.model_copy(update={"request_id": "r-2"}))
     assert not busy.ok and busy.error == "robot a-1 is busy with request r-1."
@@ -79,3 +78,30 @@ def test_refusals_cancel_and_faults() -> None:
     assert link.robots()[0].status == "idle"
     with pytest.raises(NotFound):
         link.silence("a-9")
+
+
+def state_of(robot_id: str, seq: int = 1) -> State:
+    fields = robot(robot_id).model_dump()
+    return State.model_validate({**fields, "kind": "tribot", "seq": seq, "sent_at": float(seq)})
+
+
+def test_silent_robots_are_forgotten_and_the_fleet_is_bounded(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    from robocloud.fleet.link import LatestStates
+
+    clock = Clock()
+    latest = LatestStates(
+        "cloud-a", offline_after=5.0, clock=clock, forget_after=600.0, max_fleet=3
+    )
+    for i in range(3):
+        assert latest.accept(state_of(f"a-{i}"))
+    assert not latest.accept(state_of("a-3")), "a fourth robot is refused while three report"
+    assert "the most it takes" in caplog.text
+    clock.now += 300.0
+    assert latest.accept(state_of("a-0", seq=2))  # a-0 keeps reporting
+    assert [r.status for r in latest.robots()] == ["idle", "offline", "offline"]
+    clock.now += 301.0  # a-1 and a-2 silent for 601 s, a-0 for 301 s
+    assert latest.accept(state_of("a-3"))
+    assert sorted(latest.states()) == ["a-0", "a-3"]
+    assert sorted(latest.ages()) == ["a-0", "a-3"]

@@ -63,7 +63,9 @@ class Running:
 
 
 @contextlib.contextmanager
-def clouds(workdir: Path, counts: list[int], speedup: float = 1.0) -> Iterator[Running]:
+def clouds(
+    workdir: Path, counts: list[int], speedup: float = 1.0, churn: bool = False
+) -> Iterator[Running]:
     """Start len(counts) clouds (IaaS + simulator), robots ``speedup`` times the clock."""
     key = secrets.token_urlsafe(12)
     env = {**os.environ, "ROBOCLOUD_API_KEYS": f"bench={key}"}
@@ -91,7 +93,7 @@ def clouds(workdir: Path, counts: list[int], speedup: float = 1.0) -> Iterator[R
             log = open(workdir / f"{name}-sim.log", "ab")  # noqa: SIM115
             processes.append(subprocess.Popen(
                 [*python, "sim", "--cloud", name, "--robots", str(n), "--connect", endpoint,
-                 "--seed", str(i), "--no-churn", "--speedup", str(speedup)],
+                 "--seed", str(i), "--speedup", str(speedup), *([] if churn else ["--no-churn"])],
                 stdout=log, stderr=subprocess.STDOUT))
         headers = {"Authorization": f"Bearer {key}"}
         for url, n in zip(urls, counts, strict=True):

@@ -74,7 +74,9 @@ def run(quick: bool, out: Path) -> SectionReport:
     step = 100 if quick else STEP
     rows: list[dict[str, Any]] = []
     outcomes: Counter[str] = Counter()
-    with clouds(workdir, [1000], speedup=200.0) as running:
+    # Churn: robots also charge (and take other work) on their own, or after a few
+    # thousand tasks their batteries would be spent and every request rejected.
+    with clouds(workdir, [1000], speedup=200.0, churn=True) as running:
         pid = running.iaas[0].pid
         url, key = running.urls[0], running.key
         done: list[str] = []

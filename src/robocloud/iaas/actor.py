@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import random
 import time
 from collections.abc import Awaitable, Callable, Iterable, Sequence
 from dataclasses import dataclass
@@ -36,6 +37,7 @@ log = logging.getLogger(__name__)
 
 T = TypeVar("T")
 TICK = 0.5  # seconds between two ticks of an actor
+COLLISION_PAUSE = 0.02  # seconds, times the attempt: the most a selection waits after a collision
 STORE_RETRY_MAX = 5.0  # seconds, the longest pause between two tries of a store write
 
 
@@ -57,7 +59,9 @@ class Shell:
     follow: Callable[[str, lc.Pairs], None]
     unfollow: Callable[[str, lc.Pairs], None]
     publish: Callable[[RequestRecord], None]
-    held: Callable[[], Iterable[str]]  # robots other requests follow right now
+    held: Callable[[], Iterable[str]]  # robots other requests follow or claim right now
+    claim: Callable[[str, Iterable[str]], None]  # chosen robots, until they are reserved
+    unclaim: Callable[[str, Iterable[str]], None]
     wall: Callable[[], float] = time.time
     mono: Callable[[], float] = time.monotonic
 
@@ -233,6 +237,9 @@ class RequestActor:
 
     async def _select(self, effect: lc.Select) -> lc.Event:
         shell = self.shell
+        if effect.attempt > 1:
+            # Requests that collided pick again at different moments.
+            await asyncio.sleep(random.uniform(0.0, COLLISION_PAUSE * effect.attempt))
         exclude = set(effect.exclude)
         gathered = await shell.blocking(shell.view.remote_robots, effect.task, exclude)
         held = set(shell.held())
@@ -244,6 +251,8 @@ class RequestActor:
         if result.chosen is None:
             return lc.Selected(None, selection, result.reason, notes)
         chosen = members_for(robots, effect.task, result.chosen.robots, effect.offset)
+        # Other selections see them as taken until the reservation is done.
+        shell.claim(self.request_id, result.chosen.robots)
         return lc.Selected(chosen, selection, None, notes)
 
     async def _reserve(self, robots: lc.Pairs) -> lc.Event:

@@ -271,6 +271,7 @@ class Select:
     task: Task
     exclude: frozenset[str]
     offset: float = 0.0  # robot seconds since the request's dispatch (for replacements)
+    attempt: int = 1
 
 
 @dataclass(frozen=True)
@@ -590,7 +591,7 @@ def _begin(
         offset = max(0.0, (now.wall - life.dispatched_at) * life.rules.time_scale)
     attempt = Attempt(purpose, number, task, replacing=replacing)
     exclude = life.excluded | set(life.members) | set(replacing)
-    return replace(life, attempt=attempt), [Select(task, frozenset(exclude), offset)]
+    return replace(life, attempt=attempt), [Select(task, frozenset(exclude), offset, number)]
 
 
 def _retry(life: Life, attempt: Attempt, why: str, now: Now) -> Step:

@@ -18,7 +18,7 @@ import asyncio
 import logging
 import re
 import time
-from collections.abc import AsyncIterator, Callable, Coroutine
+from collections.abc import AsyncIterator, Callable, Coroutine, Iterable
 from concurrent.futures import ThreadPoolExecutor
 from functools import partial
 from typing import Any, TypeVar
@@ -74,12 +74,15 @@ class RequestService:
             follow=self._follow,
             unfollow=self._unfollow,
             publish=self._publish,
-            held=lambda: self._routes.keys(),
+            held=lambda: self._routes.keys() | self._claims.keys(),
+            claim=self._claim,
+            unclaim=self._unclaim,
             wall=clock,
         )
         self._actors: dict[str, RequestActor] = {}
         self._tasks: set[asyncio.Task[Any]] = set()  # actors and background work
         self._routes: dict[str, str] = {}  # robot -> the request that follows it
+        self._claims: dict[str, str] = {}  # robot -> the request reserving it now
         self._listeners: dict[str, set[asyncio.Queue[RequestRecord | None]]] = {}
         self._told: dict[tuple[str, str], float] = {}  # (robot, request) -> when told to stop
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -293,9 +296,19 @@ class RequestService:
                 del self._routes[robot]
                 self.view.unwatch(robot, cloud)
 
+    def _claim(self, request_id: str, robots: Iterable[str]) -> None:
+        for robot in robots:
+            self._claims[robot] = request_id
+
+    def _unclaim(self, request_id: str, robots: Iterable[str]) -> None:
+        for robot in robots:
+            if self._claims.get(robot) == request_id:
+                del self._claims[robot]
+
     def _forget_routes(self, request_id: str) -> None:
-        for robot in [r for r, rid in self._routes.items() if rid == request_id]:
-            del self._routes[robot]
+        for held in (self._routes, self._claims):
+            for robot in [r for r, rid in held.items() if rid == request_id]:
+                del held[robot]
 
     def _state_from_thread(self, state: State) -> None:
         """Called on Zenoh's threads for every state message; hops to the loop when it matters."""

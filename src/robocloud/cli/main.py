@@ -93,7 +93,7 @@ def main(argv: list[str] | None = None) -> int:
             traceback.print_exc()
         first = (str(error).strip().splitlines() or [""])[0].rstrip(".")
         say(
-            f"{args.name} stopped on an unexpected {type(error).__name__}"
+            f"{args.command_name} stopped on an unexpected {type(error).__name__}"
             f"{': ' + first if first else ''}; run it again with --log-level debug "
             "to see where."
         )
@@ -133,7 +133,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="how many of the best ranked candidates the optimizer searches",
     )
     _add_log_level(select)
-    select.set_defaults(command=select_command, name="select")
+    select.set_defaults(command=select_command, command_name="select")
 
     scenario = commands.add_parser(
         "scenario",
@@ -146,7 +146,7 @@ def build_parser() -> argparse.ArgumentParser:
     scenario.add_argument("--seed", type=int, default=0, help="default 0")
     scenario.add_argument("--output", metavar="FILE", help="write here instead of stdout")
     _add_log_level(scenario)
-    scenario.set_defaults(command=scenario_command, name="scenario")
+    scenario.set_defaults(command=scenario_command, command_name="scenario")
 
     iaas = commands.add_parser(
         "iaas",
@@ -154,7 +154,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Run one robot cloud's IaaS until interrupted.",
     )
     add_iaas_arguments(iaas)
-    iaas.set_defaults(command=iaas_command, name="iaas")
+    iaas.set_defaults(command=iaas_command, command_name="iaas")
 
     sim = commands.add_parser(
         "sim",
@@ -165,7 +165,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_sim_arguments(sim)
     _add_log_level(sim)
-    sim.set_defaults(command=_sim_command, name="sim")
+    sim.set_defaults(command=_sim_command, command_name="sim")
 
     wildfire = commands.add_parser(
         "wildfire",
@@ -175,7 +175,7 @@ def build_parser() -> argparse.ArgumentParser:
     from robocloud.wildfire.command import add_wildfire_arguments
 
     add_wildfire_arguments(wildfire)
-    wildfire.set_defaults(command=_wildfire_command, name="wildfire")
+    wildfire.set_defaults(command=_wildfire_command, command_name="wildfire")
     return parser
 
 

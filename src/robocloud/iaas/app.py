@@ -34,6 +34,7 @@ from robocloud.federation.overlay import ZenohOverlay
 from robocloud.federation.view import FederationView
 from robocloud.fleet.link import RobotLink
 from robocloud.iaas.config import Settings
+from robocloud.iaas.docs_ui import install_docs
 from robocloud.iaas.home import Home
 from robocloud.iaas.models import (
     ErrorBody,
@@ -138,11 +139,13 @@ def create_app(
         description="Send tasks to a federation of robot clouds; follow and cancel them.",
         lifespan=lifespan,
         responses=ERRORS,
+        docs_url=None, redoc_url=None,  # Swagger UI without a CDN: iaas/docs_ui.py
     )
     app.state.settings = settings
     _install_error_handlers(app)
     _install_body_limit(app, settings.max_body_bytes)
     app.include_router(_routes())
+    install_docs(app)
     return app
 
 

@@ -32,6 +32,7 @@ Either way the user reads one sentence on stderr, never a traceback;
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import logging
 import os
@@ -73,7 +74,8 @@ def exit_code(error: RoboCloudError) -> int:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     command: Command = args.command
-    debug = args.log_level == "debug"
+    # getattr: a subcommand added later may have neither.
+    debug = getattr(args, "log_level", "") == "debug"
     try:
         return command(args)
     except RoboCloudError as error:
@@ -92,8 +94,9 @@ def main(argv: list[str] | None = None) -> int:
         if debug:
             traceback.print_exc()
         first = (str(error).strip().splitlines() or [""])[0].rstrip(".")
+        name = getattr(args, "command_name", "the command")
         say(
-            f"{args.command_name} stopped on an unexpected {type(error).__name__}"
+            f"{name} stopped on an unexpected {type(error).__name__}"
             f"{': ' + first if first else ''}; run it again with --log-level debug "
             "to see where."
         )
@@ -183,12 +186,14 @@ LOG_LEVELS = ("debug", "info", "warning", "error")
 
 
 def _add_log_level(parser: argparse.ArgumentParser, default: str = "warning") -> None:
-    parser.add_argument(
-        "--log-level",
-        default=default,
-        choices=LOG_LEVELS,
-        help=f"default {default}; debug also shows the traceback of an error",
-    )
+    """``--log-level`` for a command that does not define it itself."""
+    with contextlib.suppress(argparse.ArgumentError):  # it does already
+        parser.add_argument(
+            "--log-level",
+            default=default,
+            choices=LOG_LEVELS,
+            help=f"default {default}; debug also shows the traceback of an error",
+        )
 
 
 def _sim_command(args: argparse.Namespace) -> int:

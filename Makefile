@@ -1,11 +1,16 @@
 # robocloud: `make run` starts the system, `make test` sets up and runs the tests.
 # Every target builds its own virtual environment from nothing but Python 3.11+.
+# `make check` is the quick loop: lint and the tests that need no server.
 PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: run test lint bench clean venv
+# Left out of `make check` (markers mostly given in tests/conftest.py): tests of
+# several seconds, real processes, a browser, the PostgreSQL server.
+QUICK := not slow and not system and not browser and not postgres
+
+.PHONY: run test check lint bench reset clean venv
 
 venv: $(STAMP)
 
@@ -23,6 +28,9 @@ test: $(STAMP)
 	sh tests/wildfire/ensure_chromium.sh
 	$(BIN)/python -m pytest -q
 
+check: lint
+	$(BIN)/python -m pytest -q -m "$(QUICK)"
+
 lint: $(STAMP)
 	$(BIN)/ruff check src tests benchmarks
 	$(BIN)/mypy
@@ -30,5 +38,9 @@ lint: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/python -m benchmarks.run
 
-clean:
+# `make run` keeps its stores and logs in var/ between runs; this starts it afresh.
+reset:
+	rm -rf var
+
+clean: reset
 	rm -rf $(VENV) build dist src/*.egg-info .pytest_cache .mypy_cache .ruff_cache

@@ -1,4 +1,13 @@
-"""Fixtures shared by every test folder: a PostgreSQL database made for the session.
+"""What every test folder shares: the markers by folder, a PostgreSQL database for the session.
+
+Markers are given here, by where a test is and what it uses, so a test file
+needs none of its own (``make check`` leaves out the last three):
+
+- ``system``: everything under ``tests/system/``: real IaaS and simulator processes;
+- ``browser``: every ``test_*browser*.py``: Debian's chromium driven by Playwright;
+- ``postgres``: a test that uses the PostgreSQL server (a ``postgres_*`` fixture,
+  or the ``postgresql`` case of a parametrized backend);
+- ``slow``: system and browser tests, besides any a test file marks itself.
 
 PostgreSQL tests run in a database made for this session
 (``robocloud_test_<hex>``, dropped at the end) on the server of
@@ -11,6 +20,7 @@ from __future__ import annotations
 import os
 import secrets
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 from sqlalchemy import Engine, create_engine, text
@@ -21,6 +31,32 @@ from robocloud.storage.sql import database_url
 POSTGRES_ADMIN_URL = os.environ.get(
     "ROBOCLOUD_TEST_POSTGRES_URL", "postgresql+psycopg://postgres@127.0.0.1:5432/test"
 )
+
+TESTS = Path(__file__).parent
+SYSTEM_FOLDER = "system"
+POSTGRES_FIXTURES = frozenset({"postgres_admin", "postgres_url", "postgres_cleaner"})
+
+
+def markers_of(item: pytest.Item) -> set[str]:
+    """The markers a test gets from its place and its fixtures."""
+    path = item.path.relative_to(TESTS) if item.path.is_relative_to(TESTS) else item.path
+    names: set[str] = set()
+    if path.parts[0] == SYSTEM_FOLDER:
+        names |= {"system", "slow"}
+    if path.name.startswith("test_") and "browser" in path.name:
+        names |= {"browser", "slow"}
+    fixtures = set(getattr(item, "fixturenames", ()))
+    callspec = getattr(item, "callspec", None)
+    params = callspec.params.values() if callspec is not None else ()
+    if fixtures & POSTGRES_FIXTURES or "postgresql" in params:
+        names.add("postgres")
+    return names
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    for item in items:
+        for name in sorted(markers_of(item)):
+            item.add_marker(name)
 
 
 @pytest.fixture(scope="session")

@@ -202,7 +202,6 @@ def test_select_bad_stdin(capsys: pytest.CaptureFixture[str],
 
 
 def test_select_the_thesis_scenario(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
-    pytest.importorskip("robocloud.selection.pipeline")
     path = write(tmp_path, wildfire_scenario(1000, 3, 0))
     code, out, err = run(capsys, "select", path, "--optimizer", "exact")
     assert code == 0 and err == ""
@@ -220,7 +219,6 @@ def test_select_the_thesis_scenario(capsys: pytest.CaptureFixture[str], tmp_path
 
 def test_select_from_stdin_with_options(capsys: pytest.CaptureFixture[str],
                                         monkeypatch: pytest.MonkeyPatch) -> None:
-    pytest.importorskip("robocloud.selection.pipeline")
     monkeypatch.setattr(sys, "stdin", io.StringIO(json.dumps(wildfire_scenario(300, 2, 1))))
     code, out, err = run(capsys, "select", "-", "--optimizer", "mopso", "--seed", "3",
                          "--pool-size", "20")
@@ -233,7 +231,6 @@ def test_select_from_stdin_with_options(capsys: pytest.CaptureFixture[str],
 def test_select_nothing_feasible_still_exits_0(capsys: pytest.CaptureFixture[str],
                                                tmp_path: Path,
                                                small_scenario: dict[str, Any]) -> None:
-    pytest.importorskip("robocloud.selection.pipeline")
     document = mutated(small_scenario, lambda d: d["task"].update(actuating={"hose": 1}))
     code, out, err = run(capsys, "select", write(tmp_path, document))
     assert code == 0 and err == ""
@@ -284,7 +281,6 @@ def test_process_exit_2_without_traceback(argv: list[str], stdin: str, word: str
 
 
 def test_process_scenario_into_select(tmp_path: Path) -> None:
-    pytest.importorskip("robocloud.selection.pipeline")
     made = robocloud_process("scenario", "wildfire", "--robots", "200", "--seed", "2")
     assert made.returncode == 0
     done = robocloud_process("select", "-", stdin=made.stdout)

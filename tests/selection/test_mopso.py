@@ -365,6 +365,7 @@ def fleets(draw: st.DrawFn) -> tuple[list[Robot], Task]:
     return robots, task
 
 
+@pytest.mark.slow  # seconds of work: in make test, not in make check
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(fleets(), st.integers(0, 2**32), st.sampled_from(["random", "grid"]))
 def test_property_random_fleets(fleet: tuple[list[Robot], Task], seed: int, leader: str) -> None:
@@ -381,6 +382,7 @@ def test_property_random_fleets(fleet: tuple[list[Robot], Task], seed: int, lead
 # --- against brute force --------------------------------------------------------------
 
 
+@pytest.mark.slow  # seconds of work: in make test, not in make check
 def test_matches_the_brute_force_front_on_small_instances() -> None:
     rng = np.random.default_rng(2024)
     matches = identical = 0

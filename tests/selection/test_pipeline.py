@@ -3,6 +3,7 @@
 import itertools
 
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -75,6 +76,7 @@ def feasible_subsets(problem: CoalitionProblem) -> list[tuple[int, ...]]:
     return found
 
 
+@pytest.mark.slow  # seconds of work: in make test, not in make check
 @settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(robots_and_task())
 def test_select_invariants(case: tuple[list[Robot], Task]) -> None:

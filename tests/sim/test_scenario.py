@@ -10,6 +10,7 @@ import pytest
 from robocloud.domain import Robot, Task
 from robocloud.errors import InvalidInput
 from robocloud.selection.filtering import filter_robots
+from robocloud.selection.pipeline import select
 from robocloud.selection.problem import robot_terms
 from robocloud.sim.scenario import (
     FOREST_SIZE,
@@ -124,9 +125,8 @@ def test_some_candidates_reach_the_fire_in_time(seed: int) -> None:
 
 @pytest.mark.parametrize("seed", range(3))
 def test_the_thesis_request_is_feasible_with_several_trade_offs(seed: int) -> None:
-    pipeline = pytest.importorskip("robocloud.selection.pipeline")
     robots, task = parsed(seed=seed)
-    result = pipeline.select(robots, task, optimizer="exact")
+    result = select(robots, task, optimizer="exact")
     assert result.candidates == 100
     assert result.chosen is not None
     assert len(result.pareto) >= 2
@@ -136,9 +136,8 @@ def test_the_thesis_request_is_feasible_with_several_trade_offs(seed: int) -> No
 
 
 def test_seed_0_front_trades_size_too() -> None:
-    pipeline = pytest.importorskip("robocloud.selection.pipeline")
     robots, task = parsed(seed=0)
-    result = pipeline.select(robots, task, optimizer="exact")
+    result = select(robots, task, optimizer="exact")
     assert len(result.pareto) >= 3
     assert len({c.size for c in result.pareto}) >= 2
 

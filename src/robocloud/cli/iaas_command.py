@@ -1,12 +1,40 @@
-"""``robocloud iaas``: one cloud's IaaS (HTTP API, Zenoh router, store) in one process."""
+"""``robocloud iaas``: one cloud's IaaS (HTTP API, Zenoh router, store) in one process.
+
+Start-up goes in three steps, so that each mistake is one sentence (and its
+exit code, see ``robocloud.cli.main``) before anything is left half open:
+
+1. ``iaas_settings`` checks every argument and opens nothing: the cloud's
+   name, the numbers, the API keys, the Zenoh endpoints' form, the security
+   files, the store URL (a SQLite file's folder must exist; only ``var/``,
+   the folder of the default store, is created).
+2. The HTTP port is bound and the store opened, here rather than in the app's
+   lifespan (``create_app`` takes the store), so a port in use or an
+   unreachable database is said at once.
+3. ``robocloud.cli.serving`` enters the app's lifespan (Zenoh router,
+   overlay, request service) before uvicorn serves: an error while opening
+   the router is one sentence, not uvicorn's log of a traceback.
+
+SIGINT and SIGTERM stop the server; the lifespan and the store are then
+closed in order and the command returns 0.
+"""
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import json
 import logging
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING
 
 from robocloud.errors import InvalidInput
 from robocloud.federation import security
+
+if TYPE_CHECKING:
+    from robocloud.iaas.config import Settings
+
+DEFAULT_ZENOH = "tcp/127.0.0.1:7447"
 
 
 def endpoint(text: str) -> tuple[str, int]:
@@ -97,44 +125,83 @@ def add_iaas_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def iaas_command(args: argparse.Namespace) -> int:
-    import uvicorn
-
+    settings = iaas_settings(args)
+    logging.basicConfig(
+        level=args.log_level.upper(),
+        format=f"%(asctime)s {settings.cloud} %(levelname)s %(name)s: %(message)s",
+    )
+    # Imported here: the other commands need none of the server's stack.
+    from robocloud.cli.serving import listen_socket, serve
     from robocloud.iaas.app import create_app
-    from robocloud.iaas.config import Settings, parse_api_keys
+    from robocloud.storage import open_store
+    from robocloud.storage.opening import masked
 
-    for flag in ("offline_after", "ack_timeout", "forget_after", "time_scale"):
-        if not getattr(args, flag) > 0:
-            raise InvalidInput(f"--{flag.replace('_', '-')} must be a positive number.", flag)
+    if not args.store:
+        # The one folder robocloud makes: that of the store it chose itself.
+        Path(settings.store_url.removeprefix("sqlite:///")).parent.mkdir(
+            parents=True, exist_ok=True
+        )
+    with contextlib.ExitStack() as stack:
+        listener = stack.enter_context(listen_socket(settings.host, settings.port, "--listen"))
+        store = open_store(settings.store_url)
+        stack.callback(store.close)
+        ready = (
+            f"serving http://{args.listen[0]}:{settings.port}/v1 (docs at /docs), "
+            f"robots on {', '.join(settings.zenoh_listen)}, store {masked(settings.store_url)}"
+        )
+        serve(create_app(settings, store=store), listener, args.log_level, ready)
+    return 0
+
+
+def iaas_settings(args: argparse.Namespace) -> Settings:
+    """The IaaS's settings from its flags and environment, every one checked; nothing opened."""
+    from robocloud.fleet.keys import check_chunk
+    from robocloud.iaas.config import Settings, default_store_url, parse_api_keys
+    from robocloud.storage.opening import check_store_url
+
+    check_chunk(args.cloud, "--cloud")
+    for flag in ("--offline-after", "--ack-timeout", "--forget-after", "--time-scale"):
+        value = getattr(args, flag.removeprefix("--").replace("-", "_"))
+        if not value > 0:  # also refuses nan
+            raise InvalidInput(f"{flag} must be more than 0, not {value}.", flag)
+    zenoh_listen = tuple(args.zenoh or [DEFAULT_ZENOH])
+    check_endpoints(zenoh_listen, "--zenoh")
+    check_endpoints(args.peer, "--peer")
+    for cloud in args.trust:
+        check_chunk(cloud, "--trust")
     keys = parse_api_keys(",".join(args.api_key))
+    overlay_security = security.from_arguments(args)  # the files exist and are PEM
+    if args.store:
+        check_store_url(args.store)
     settings = Settings.from_env(
         args.cloud,
         host=args.listen[0],
         port=args.listen[1],
-        zenoh_listen=tuple(args.zenoh or ["tcp/127.0.0.1:7447"]),
+        zenoh_listen=zenoh_listen,
         zenoh_peers=tuple(args.peer),
         trusted=tuple(args.trust),
-        store_url=args.store,
+        store_url=args.store or default_store_url(args.cloud),
         api_keys=keys,
         optimizer=args.optimizer,
         offline_after=args.offline_after,
         ack_timeout=args.ack_timeout,
         forget_after=args.forget_after,
         time_scale=args.time_scale,
-        overlay_security=security.from_arguments(args),
+        overlay_security=overlay_security,
     )
-    if settings.store_url.startswith("sqlite:///"):
-        from pathlib import Path
+    return settings
 
-        Path(settings.store_url.removeprefix("sqlite:///")).parent.mkdir(
-            parents=True, exist_ok=True
-        )
-    logging.basicConfig(
-        level=args.log_level.upper(),
-        format=f"%(asctime)s {settings.cloud} %(levelname)s %(name)s: %(message)s",
-    )
-    app = create_app(settings)
-    config = uvicorn.Config(
-        app, host=settings.host, port=settings.port, log_level=args.log_level, access_log=False
-    )
-    uvicorn.Server(config).run()
-    return 0
+
+def check_endpoints(endpoints: Sequence[str], flag: str) -> None:
+    """Each endpoint in Zenoh's form (``tcp/127.0.0.1:7447``), as Zenoh itself reads it."""
+    import zenoh
+
+    for endpoint in endpoints:
+        try:
+            zenoh.Config().insert_json5("connect/endpoints", json.dumps([endpoint]))
+        except zenoh.ZError:
+            raise InvalidInput(
+                f"{flag} {endpoint!r} is not a Zenoh endpoint; write PROTOCOL/ADDRESS, "
+                f"e.g. {DEFAULT_ZENOH}.",
+                flag,
+            ) from None

@@ -4,27 +4,40 @@
 
     robocloud select SCENARIO.json [--optimizer auto|exact|mopso] [--seed N] [--pool-size K]
     robocloud scenario wildfire [--robots 1000] [--clouds 3] [--seed N] [--output FILE]
+    robocloud iaas --cloud NAME ...       (robocloud.cli.iaas_command)
+    robocloud sim --cloud NAME ...        (robocloud.sim.command)
+    robocloud wildfire --iaas URL ...     (robocloud.wildfire.command)
 
-``select`` reads MODEL.md's input (a file, or ``-`` for stdin) and prints
-MODEL.md's output as one JSON document on stdout. ``scenario wildfire``
+``select`` reads docs/model.md's input (a file, or ``-`` for stdin) and
+prints its output as one JSON document on stdout. ``scenario wildfire``
 writes the thesis's illustrative scenario (section 5.4) in that input shape.
 
-Exit codes, mapped from the error family in :func:`exit_code` only:
+Every command checks all its arguments before it opens anything (a file, a
+port, a database, a Zenoh session). Exit codes, mapped in :func:`exit_code`
+only:
 
-- 0: done, also when no coalition is feasible (the output says why);
+- 0: done, also when no coalition is feasible (the output says why), and a
+  server stopped by SIGINT or SIGTERM;
 - 2: the user's input is wrong (:class:`~robocloud.errors.InvalidInput`,
   :class:`~robocloud.errors.NotFound`), and argparse's own usage errors;
-- 1: any other :class:`~robocloud.errors.RoboCloudError`.
+- 1: anything else that stops a command: a store that cannot be reached, a
+  port in use (other :class:`~robocloud.errors.RoboCloudError`), or an error
+  nobody foresaw;
+- 130: interrupted while starting.
 
-A user's mistake is reported as one sentence on stderr, never a traceback.
+Either way the user reads one sentence on stderr, never a traceback;
+``--log-level debug`` (every command has it) prints the traceback before it.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import logging
 import os
 import sys
+import traceback
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, NoReturn
@@ -61,11 +74,14 @@ def exit_code(error: RoboCloudError) -> int:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     command: Command = args.command
+    # getattr: a subcommand added later may have neither.
+    debug = getattr(args, "log_level", "") == "debug"
     try:
         return command(args)
     except RoboCloudError as error:
-        # One line, whatever the message holds.
-        print(f"robocloud: {' '.join(error.message.split())}", file=sys.stderr)
+        if debug:
+            traceback.print_exc()
+        say(error.message)
         return exit_code(error)
     except KeyboardInterrupt:
         return EXIT_INTERRUPTED
@@ -74,6 +90,22 @@ def main(argv: list[str] | None = None) -> int:
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, sys.stdout.fileno())
         return EXIT_FAILED
+    except Exception as error:  # a failure nobody foresaw: still one sentence
+        if debug:
+            traceback.print_exc()
+        first = (str(error).strip().splitlines() or [""])[0].rstrip(".")
+        name = getattr(args, "command_name", "the command")
+        say(
+            f"{name} stopped on an unexpected {type(error).__name__}"
+            f"{': ' + first if first else ''}; run it again with --log-level debug "
+            "to see where."
+        )
+        return EXIT_FAILED
+
+
+def say(message: str) -> None:
+    """The one line on stderr an error becomes, whatever the message holds."""
+    print(f"robocloud: {' '.join(message.split())}", file=sys.stderr)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -103,7 +135,8 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="K",
         help="how many of the best ranked candidates the optimizer searches",
     )
-    select.set_defaults(command=select_command)
+    _add_log_level(select)
+    select.set_defaults(command=select_command, command_name="select")
 
     scenario = commands.add_parser(
         "scenario",
@@ -115,7 +148,8 @@ def build_parser() -> argparse.ArgumentParser:
     scenario.add_argument("--clouds", type=int, default=3, help="providers, 1 to 26 (default 3)")
     scenario.add_argument("--seed", type=int, default=0, help="default 0")
     scenario.add_argument("--output", metavar="FILE", help="write here instead of stdout")
-    scenario.set_defaults(command=scenario_command)
+    _add_log_level(scenario)
+    scenario.set_defaults(command=scenario_command, command_name="scenario")
 
     iaas = commands.add_parser(
         "iaas",
@@ -123,7 +157,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Run one robot cloud's IaaS until interrupted.",
     )
     add_iaas_arguments(iaas)
-    iaas.set_defaults(command=iaas_command)
+    iaas.set_defaults(command=iaas_command, command_name="iaas")
 
     sim = commands.add_parser(
         "sim",
@@ -133,24 +167,72 @@ def build_parser() -> argparse.ArgumentParser:
     from robocloud.sim.command import add_sim_arguments
 
     add_sim_arguments(sim)
-    sim.set_defaults(command=_sim_command)
+    _add_log_level(sim)
+    sim.set_defaults(command=_sim_command, command_name="sim")
 
     wildfire = commands.add_parser(
         "wildfire",
         help="serve the Wildfire Suppression Application for an IaaS",
         description="Serve the page and call the IaaS with the application's key.",
     )
-    from robocloud.wildfire.command import add_wildfire_arguments, wildfire_command
+    from robocloud.wildfire.command import add_wildfire_arguments
 
     add_wildfire_arguments(wildfire)
-    wildfire.set_defaults(command=wildfire_command)
+    wildfire.set_defaults(command=_wildfire_command, command_name="wildfire")
     return parser
 
 
+LOG_LEVELS = ("debug", "info", "warning", "error")
+
+
+def _add_log_level(parser: argparse.ArgumentParser, default: str = "warning") -> None:
+    """``--log-level`` for a command that does not define it itself."""
+    with contextlib.suppress(argparse.ArgumentError):  # it does already
+        parser.add_argument(
+            "--log-level",
+            default=default,
+            choices=LOG_LEVELS,
+            help=f"default {default}; debug also shows the traceback of an error",
+        )
+
+
 def _sim_command(args: argparse.Namespace) -> int:
+    from robocloud.cli.iaas_command import check_endpoints
+    from robocloud.federation import security
+    from robocloud.fleet.keys import check_chunk
     from robocloud.sim.command import sim_command
 
+    # Everything the simulator would refuse, before it connects to anything.
+    check_chunk(args.cloud, "--cloud")
+    _check_at_least("--robots", args.robots, 1)
+    _check_at_least("--seed", args.seed, 0)
+    if not args.speedup > 0:  # also refuses nan
+        raise InvalidInput(f"--speedup must be more than 0, not {args.speedup}.", "--speedup")
+    if not args.connect_timeout >= 0:  # 0: one try
+        raise InvalidInput(
+            f"--connect-timeout must be 0 or more, not {args.connect_timeout}.", "--connect-timeout"
+        )
+    check_endpoints(args.connect, "--connect")
+    security.from_arguments(args)
+    logging.basicConfig(
+        level=args.log_level.upper(),
+        format=f"%(asctime)s {args.cloud}-sim %(levelname)s %(name)s: %(message)s",
+    )
     return sim_command(args)
+
+
+def _wildfire_command(args: argparse.Namespace) -> int:
+    from robocloud.cli.serving import listen_socket
+    from robocloud.wildfire.command import wildfire_command
+
+    if not args.timeout > 0:
+        raise InvalidInput(f"--timeout must be more than 0, not {args.timeout}.", "--timeout")
+    # A port in use is a sentence here rather than uvicorn's log after start-up;
+    # the server binds it again right after (SO_REUSEADDR).
+    host, port = args.listen
+    with listen_socket(host, port, "--listen"):
+        pass
+    return wildfire_command(args)
 
 
 # --- select ---------------------------------------------------------------

@@ -41,6 +41,7 @@ from robocloud.federation.overlay import ZenohOverlay
 from robocloud.federation.view import FederationView
 from robocloud.fleet.link import RobotLink
 from robocloud.iaas.config import Settings
+from robocloud.iaas.docs_ui import install_docs
 from robocloud.iaas.home import Home
 from robocloud.iaas.models import (
     ErrorBody,
@@ -154,6 +155,8 @@ def create_app(
         version="0.1.0",
         description="Send tasks to a federation of robot clouds; follow and cancel them.",
         lifespan=lifespan,
+        docs_url=None,
+        redoc_url=None,  # Swagger UI without a CDN: iaas/docs_ui.py
     )
     app.state.settings = settings
     _install_error_handlers(app)
@@ -162,6 +165,7 @@ def create_app(
     app.include_router(routes)
     app.state.routes = [r for r in routes.routes if isinstance(r, APIRoute)]
     app.openapi = lambda: _openapi(app)  # type: ignore[method-assign]
+    install_docs(app)
     return app
 
 

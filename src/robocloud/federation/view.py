@@ -13,6 +13,7 @@ Without an overlay (``overlay=None``) the view is this cloud alone.
 from __future__ import annotations
 
 import logging
+import time
 from collections import defaultdict
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
@@ -30,6 +31,7 @@ logger = logging.getLogger(__name__)
 # A remote reservation is a lease until the request is dispatched: if this
 # cloud dies in between, the home cloud gets its robots back by itself.
 LEASE_SECONDS = 15.0
+RESERVATIONS_TTL = 0.25  # seconds a read of the store's reservations serves selections
 
 
 @dataclass
@@ -55,18 +57,34 @@ class FederationView:
         self.link = link
         self.overlay = overlay
         self.gather_timeout = gather_timeout
+        self._reserved: tuple[float, set[str]] | None = None  # (when read, robot ids)
 
     # -- what a selection sees ------------------------------------------------
 
     def local_robots(self, held: Iterable[str] = ()) -> list[Robot]:
-        """This cloud's robots; those reserved in the store (or ``held``) as ``reserved``."""
-        reserved = set(self.store.reservations()) | set(held)
+        """This cloud's robots; those reserved in the store (or ``held``) as ``reserved``.
+
+        The store's reservations are read at most every ``RESERVATIONS_TTL``
+        seconds: selections running at once share one read. A robot reserved
+        since looks free for that long; its reservation is then refused
+        (``reserve`` returns it as taken) and the selection runs again.
+        """
+        reserved = self._reservations() | set(held)
         return [
             robot.model_copy(update={"status": "reserved"})
             if robot.id in reserved and robot.status == "idle"
             else robot
             for robot in self.link.robots()
         ]
+
+    def _reservations(self) -> set[str]:
+        now = time.monotonic()
+        cached = self._reserved
+        if cached is not None and now - cached[0] < RESERVATIONS_TTL:
+            return cached[1]
+        reserved = set(self.store.reservations())
+        self._reserved = (now, reserved)
+        return reserved
 
     def remote_robots(self, task: Task, exclude: set[str]) -> View:
         """The idle robots of the other live clouds that answer within the timeout."""

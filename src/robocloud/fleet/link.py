@@ -48,6 +48,10 @@ class RobotLink(Protocol):
         """The latest state of each robot heard from, by id."""
         ...
 
+    def state(self, robot_id: str) -> State | None:
+        """The latest state of one robot, None if it is not heard from."""
+        ...
+
     def ages(self) -> dict[str, float]:
         """Seconds since each robot's latest state, by id."""
         ...
@@ -160,6 +164,10 @@ class LatestStates:
         with self._lock:
             return dict(self._states)
 
+    def state(self, robot_id: str) -> State | None:
+        with self._lock:
+            return self._states.get(robot_id)
+
     def ages(self) -> dict[str, float]:
         now = self.clock()
         with self._lock:
@@ -226,6 +234,9 @@ class ZenohRobotLink:
 
     def states(self) -> dict[str, State]:
         return self._latest.states()
+
+    def state(self, robot_id: str) -> State | None:
+        return self._latest.state(robot_id)
 
     def ages(self) -> dict[str, float]:
         return self._latest.ages()

@@ -61,6 +61,9 @@ class MemoryRobotLink:
     def states(self) -> dict[str, State]:
         return self._latest.states()
 
+    def state(self, robot_id: str) -> State | None:
+        return self._latest.state(robot_id)
+
     def ages(self) -> dict[str, float]:
         return self._latest.ages()
 

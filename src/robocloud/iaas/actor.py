@@ -24,7 +24,7 @@ from collections.abc import Awaitable, Callable, Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol, TypeVar
 
-from robocloud.domain import Robot, Task
+from robocloud.domain import Robot, Task, is_final
 from robocloud.errors import Conflict, Unavailable
 from robocloud.federation.view import FederationView
 from robocloud.fleet.messages import Assign as AssignCommand
@@ -55,7 +55,8 @@ class Shell:
     view: FederationView
     selector: Selector
     rules: lc.Rules
-    blocking: Callable[..., Awaitable[Any]]  # run a blocking call on the IaaS's I/O threads
+    blocking: Callable[..., Awaitable[Any]]  # a blocking call on the IaaS's I/O threads
+    in_store: Callable[..., Awaitable[Any]]  # a call of the store, on the store's threads
     follow: Callable[[str, lc.Pairs], None]
     unfollow: Callable[[str, lc.Pairs], None]
     publish: Callable[[RequestRecord], None]
@@ -178,7 +179,11 @@ class RequestActor:
                         )
                     )
             case lc.Release(robots, why):
-                await shell.blocking(shell.view.release, rid, list(robots), why)
+                if is_final(self.record.state):
+                    # The final state's transaction released this cloud's robots.
+                    robots = tuple(p for p in robots if p[1] != shell.view.cloud)
+                if robots:
+                    await shell.blocking(shell.view.release, rid, list(robots), why)
             case lc.ReleaseAll():
                 await self._write(shell.store.release, rid, None)
             case lc.Follow(robots):
@@ -214,7 +219,7 @@ class RequestActor:
     async def _write(self, method: Callable[..., T], *args: Any) -> T:
         """A store write, tried again while the store is unavailable."""
         return await self._again_while_unavailable(
-            lambda: self.shell.blocking(method, *args), "store write"
+            lambda: self.shell.in_store(method, *args), "store write"
         )
 
     async def _again_while_unavailable(self, work: Callable[[], Awaitable[T]], what: str) -> T:

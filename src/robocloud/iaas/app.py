@@ -208,12 +208,12 @@ def _openapi(app: FastAPI) -> dict[str, Any]:
     return app.openapi_schema
 
 
-def service_of(request: Request) -> RequestService:
+async def service_of(request: Request) -> RequestService:
     service: RequestService = request.app.state.service
     return service
 
 
-def application_of(request: Request) -> str:
+async def application_of(request: Request) -> str:
     """The application whose API key the ``Gate`` checked, before anything read the body."""
     application = request.scope.get("state", {}).get("application")
     if not isinstance(application, str):
@@ -327,7 +327,7 @@ def _routes() -> Any:
             ),
         ] = None,
     ) -> RequestList:
-        records, cursor = await service.blocking(
+        records, cursor = await service.in_store(
             service.store.list, application, state, limit, before
         )
         return RequestList(items=[request_public(r, service) for r in records], next=cursor)

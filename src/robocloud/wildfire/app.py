@@ -178,8 +178,7 @@ def _api() -> APIRouter:
 
     @router.get("/config")
     async def config(model: Model) -> dict[str, Any]:
-        config: dict[str, Any] = model.snapshot(time.time())["config"]
-        return config
+        return model.config_json()
 
     @router.get("/robots")
     async def robots(model: Model) -> list[dict[str, Any]]:
@@ -191,8 +190,7 @@ def _api() -> APIRouter:
 
     @router.get("/clouds")
     async def clouds(model: Model) -> list[dict[str, Any]]:
-        clouds: list[dict[str, Any]] = model.snapshot(time.time())["clouds"]
-        return clouds
+        return model.clouds_json()
 
     @router.get("/requests")
     async def list_requests(

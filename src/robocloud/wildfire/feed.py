@@ -41,7 +41,7 @@ class TooManyPages(Exception):
     pass
 
 
-@dataclass
+@dataclass(eq=False)  # each page's stream is its own, hashed by identity
 class Subscriber:
     queue: asyncio.Queue[bytes] = field(default_factory=lambda: asyncio.Queue(QUEUE_LENGTH))
     lagging: bool = False

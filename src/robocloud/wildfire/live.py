@@ -367,7 +367,7 @@ class LiveModel:
     def known_capabilities(self) -> set[str]:
         return {n for r in self.robots.values() for n in r.row[COLUMN["capabilities"]]}
 
-    def _clouds_json(self) -> list[dict[str, Any]]:
+    def clouds_json(self) -> list[dict[str, Any]]:
         out = []
         for cloud in sorted(self.clouds.values(), key=lambda c: c.name):
             robots = [r for r in self.robots.values() if r.row[1] == cloud.name]
@@ -381,7 +381,7 @@ class LiveModel:
                         **counts})
         return out
 
-    def _config_json(self) -> dict[str, Any]:
+    def config_json(self) -> dict[str, Any]:
         s = self.settings
         return {"forest": s.forest.as_json(), "currency": s.currency, "time_scale": self.time_scale,
                 "stale_after": s.stale_after, "tick": s.tick, "iaas": list(s.iaas)}
@@ -416,8 +416,8 @@ class LiveModel:
         if robots:
             delta["robots"] = robots
         parts = {
-            "config": self._config_json(),
-            "clouds": self._clouds_json(),
+            "config": self.config_json(),
+            "clouds": self.clouds_json(),
             "endpoints": self.endpoints,
             "capabilities": self.capability_offers(now),
         }
@@ -440,7 +440,7 @@ class LiveModel:
                           reverse=True)[:REQUESTS_IN_SNAPSHOT]
         return {
             "now": round(now, 3),
-            "config": self._published.get("config", self._config_json()),
+            "config": self._published.get("config", self.config_json()),
             "clouds": self._published.get("clouds", []),
             "endpoints": self._published.get("endpoints", []),
             "capabilities": self._published.get("capabilities", []),

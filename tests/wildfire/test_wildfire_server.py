@@ -455,3 +455,37 @@ def test_the_module_runs_as_a_command() -> None:
                           capture_output=True, text=True, timeout=60)
     assert done.returncode == 2
     assert "'1,2' is not X0,Y0,X1,Y1" in done.stderr
+
+
+def test_an_answer_too_large_or_not_json_is_a_sentence(
+        client: TestClient, cloud_a: FakeIaas, cloud_b: FakeIaas,
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    import httpx
+
+    from robocloud.wildfire import iaas_client
+
+    cloud_b.down = True  # every send goes to cloud-a
+    monkeypatch.setattr(iaas_client, "MAX_ANSWER_BYTES", 1000)
+    cloud_a.answer = lambda _: httpx.Response(202, content=b"[" + b"1," * 1000 + b"1]")
+    answer = client.post("/api/requests", json=TASK)
+    assert (answer.status_code, answer.json()) == (502, {
+        "detail": "the IaaS at http://cloud-a.test gave no usable answer: its answer is over "
+                  "1000 bytes.", "delivery": "unknown"})
+    cloud_a.answer = lambda _: httpx.Response(202, text="<html>a proxy page</html>")
+    assert client.post("/api/requests", json=TASK).json()["detail"].endswith(
+        "its answer is not JSON.")
+    cloud_a.answer = lambda _: httpx.Response(500, text="<html>oops</html>")
+    assert client.post("/api/requests", json=TASK).json() == {
+        "detail": "the IaaS answered 500 Internal Server Error without a reason.",
+        "delivery": "unknown"}
+
+
+def test_a_lying_fleet_is_cut_to_what_the_page_can_show(cloud_a: FakeIaas) -> None:
+    cloud_a.robots = [robot("x" * 65, "cloud-a"), robot("a-0001", "c" * 65),
+                      robot("a-0002", "cloud-a")]
+    cloud_a.listing = [{"cloud": f"cloud-{i}"} for i in range(100)]
+    app = create_wildfire_app(settings(cloud_a), transport=FakeFederation(cloud_a).transport())
+    with TestClient(app) as client:
+        until(lambda: client.get("/api/robots").json())
+        assert [r["id"] for r in client.get("/api/robots").json()] == ["a-0002"]
+        assert len(until(lambda: client.get("/api/clouds").json())) <= 64

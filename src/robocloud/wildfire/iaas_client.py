@@ -22,6 +22,8 @@ import httpx
 # Request ids travel inside a path: anything else could walk to another route.
 REQUEST_ID = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]{0,127}")
 LIST_PARAMETERS = ("state", "limit", "before")
+# 100,000 robots are about 30 MB of JSON: an answer beyond this is not an IaaS's.
+MAX_ANSWER_BYTES = 64 * 1024 * 1024
 
 # Errors raised before a byte of the call left: the IaaS cannot have acted on it.
 NOT_SENT = (httpx.ConnectError, httpx.ConnectTimeout, httpx.PoolTimeout, httpx.UnsupportedProtocol)
@@ -107,7 +109,8 @@ class IaasClient:
         if timeout is not None:
             kwargs["timeout"] = timeout
         try:
-            answer = await self._http.request(method, path, **kwargs)
+            async with self._http.stream(method, path, **kwargs) as answer:
+                content = await _bounded(answer)
         except NOT_SENT as error:
             raise IaasUnreachable(
                 self.base_url,
@@ -126,10 +129,13 @@ class IaasClient:
                 maybe_delivered=True,
                 timed_out=False,
             ) from None
+        if content is None:
+            raise _not_json(self.base_url, f"its answer is over {MAX_ANSWER_BYTES} bytes")
         if answer.status_code >= 400:
-            raise IaasError(answer.status_code, _sentence(answer))
+            raise IaasError(answer.status_code, _sentence(answer.status_code,
+                                                          answer.reason_phrase, content))
         try:
-            return json.loads(answer.content)
+            return json.loads(content)
         except ValueError:
             raise _not_json(self.base_url, "its answer is not JSON") from None
 
@@ -158,14 +164,24 @@ def _list(value: Any, url: str) -> list[Any]:
     return value
 
 
-def _sentence(answer: httpx.Response) -> str:
+def _sentence(status: int, reason: str, content: bytes) -> str:
     try:
-        detail = answer.json().get("detail")
+        detail = json.loads(content).get("detail")
     except (ValueError, AttributeError):
         detail = None
     if isinstance(detail, str) and detail:
-        return detail
-    return f"the IaaS answered {answer.status_code} {answer.reason_phrase} without a reason."
+        return detail[:1000]
+    return f"the IaaS answered {status} {reason} without a reason."
+
+
+async def _bounded(answer: httpx.Response) -> bytes | None:
+    """The answer's body, or None past ``MAX_ANSWER_BYTES`` (read no further)."""
+    body = bytearray()
+    async for chunk in answer.aiter_bytes():
+        body += chunk
+        if len(body) > MAX_ANSWER_BYTES:
+            return None
+    return bytes(body)
 
 
 def _cause(error: httpx.HTTPError) -> str:

@@ -47,6 +47,9 @@ CLOUD_COLOURS = (
 # A robot not heard from for this long is forgotten (its cloud stays listed).
 FORGET_AFTER = 900.0
 MAX_ROBOTS = 100_000
+MAX_CLOUDS = 64
+MAX_NAME = 64
+MAX_TEXT = 500
 MAX_ALERTS = 200
 ALERTS_IN_SNAPSHOT = 50
 MAX_FOLLOWED = 300
@@ -82,6 +85,15 @@ def _number(value: Any, default: float | None = None) -> float | None:
     if isinstance(value, bool) or not isinstance(value, int | float):
         return default
     return float(value)
+
+
+def _name(value: Any, longest: int = MAX_NAME) -> bool:
+    """An id or a name as the page can show it: a short text (a longer one is a lie)."""
+    return isinstance(value, str) and 0 < len(value) <= longest
+
+
+def _text(value: Any) -> str | None:
+    return value[:MAX_TEXT] if isinstance(value, str) else None
 
 
 def _when(text: Any) -> float | None:
@@ -164,6 +176,8 @@ class LiveModel:
             if robot is None:
                 continue
             row, kinds = robot
+            if row[1] not in self.clouds and len(self.clouds) >= MAX_CLOUDS:
+                continue
             seen_ago = _number(data.get("seen_ago"), 0.0) or 0.0
             heard = at - max(0.0, seen_ago)
             known = self.robots.get(row[0])
@@ -180,14 +194,15 @@ class LiveModel:
         """The live clouds of the federation (``GET /v1/clouds``)."""
         listing: dict[str, dict[str, int]] = {}
         for info in clouds:
-            if not isinstance(info, Mapping) or not isinstance(info.get("cloud"), str):
+            if not isinstance(info, Mapping) or not _name(info.get("cloud")):
                 continue
+            if info["cloud"] not in self.clouds and len(self.clouds) >= MAX_CLOUDS:
+                continue
+            self._cloud(info["cloud"])
             listing[info["cloud"]] = {
                 k: int(v) for k in ("robots", "idle", "offline")
                 if isinstance(v := info.get(k), int) and not isinstance(v, bool)
             }
-        for name in listing:
-            self._cloud(name)
         self.listing = listing
         self.listing_at = at
 
@@ -229,7 +244,7 @@ class LiveModel:
 
     def alert(self, level: str, kind: str, text: str, at: float, *, cloud: str | None = None,
               request: str | None = None) -> Alert:
-        alert = Alert(self._next_alert, at, level, kind, text, cloud, request)
+        alert = Alert(self._next_alert, at, level, kind, humanize(text), cloud, request)
         self._next_alert += 1
         self.alerts.append(alert)
         self._new_alerts.append(alert)
@@ -461,7 +476,7 @@ def _robot_row(data: Any) -> tuple[list[Any], dict[str, str]] | None:
         return None
     robot_id, cloud = data.get("id"), data.get("cloud")
     position = data.get("position")
-    if not (isinstance(robot_id, str) and isinstance(cloud, str) and isinstance(position, list)
+    if not (_name(robot_id) and _name(cloud) and isinstance(position, list)
             and len(position) == 2):
         return None
     x, y = _number(position[0]), _number(position[1])
@@ -475,9 +490,9 @@ def _robot_row(data: Any) -> tuple[list[Any], dict[str, str]] | None:
     )
     phase = progress.get("phase") if isinstance(progress.get("phase"), str) else None
     value = _number(progress.get("progress"))
-    request = data.get("request") if isinstance(data.get("request"), str) else None
+    request = data.get("request") if _name(data.get("request"), 200) else None
     # Rounded to what the map and the tables can show: finer changes are not news.
-    row = [robot_id[:64], cloud[:64], status, round(x), round(y), round(battery), sorted(kinds),
+    row = [robot_id, cloud, status, round(x), round(y), round(battery), sorted(kinds),
            request, phase, None if value is None else round(value, 2)]
     return row, kinds
 
@@ -485,7 +500,7 @@ def _robot_row(data: Any) -> tuple[list[Any], dict[str, str]] | None:
 def request_summary(record: Mapping[str, Any], cloud: str | None) -> dict[str, Any] | None:
     """The part of a request the tables, the ETAs and the alerts need."""
     request_id, state = record.get("id"), record.get("state")
-    if not (isinstance(request_id, str) and isinstance(state, str)):
+    if not (_name(request_id, 128) and _name(state)):
         return None
     task: Mapping[str, Any] = record["task"] if isinstance(record.get("task"), Mapping) else {}
     needs: dict[str, Any] = {}
@@ -496,9 +511,9 @@ def request_summary(record: Mapping[str, Any], cloud: str | None) -> dict[str, A
     history: list[Any] = record["history"] if isinstance(record.get("history"), list) else []
     return {
         "id": request_id,
-        "label": record.get("label"),
+        "label": _text(record.get("label")),
         "state": state,
-        "reason": record.get("reason"),
+        "reason": _text(record.get("reason")),
         "created_at": record.get("created_at"),
         "updated_at": record.get("updated_at"),
         "cloud": cloud,
@@ -515,6 +530,16 @@ def request_summary(record: Mapping[str, Any], cloud: str | None) -> dict[str, A
                    for a in coalition if isinstance(a, Mapping)],
         "rev": f"{record.get('updated_at')}/{len(history)}",
     }
+
+
+# The task's field names as the page's form shows them (js/util.js ``humanize``).
+FIELD_WORDS = re.compile(r"\b(max_time|max_cost|max_robots|min_battery)\b")
+MAX_ALERT_CHARS = 400
+
+
+def humanize(text: str) -> str:
+    words = FIELD_WORDS.sub(lambda m: m.group(1).replace("_", " "), text)
+    return words if len(words) <= MAX_ALERT_CHARS else words[: MAX_ALERT_CHARS - 1] + "…"
 
 
 def _request_name(summary: Mapping[str, Any]) -> str:

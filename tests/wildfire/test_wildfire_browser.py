@@ -256,7 +256,9 @@ def test_get_state_of_a_request_by_its_id(page: Any, system: System, console: Co
     expect(page.locator("#lookup-id")).to_have_attribute("aria-invalid", "true")
 
     with system.iaas() as client:
-        newest = client.get("/v1/requests", params={"limit": 1}).json()["items"][0]
+        newest = client.post("/v1/requests", json={
+            "location": [500.0, 500.0], "actuating": {"grabber": 1}, "max_robots": 3,
+            "max_cost": 100.0, "max_time": 600.0, "min_battery": 100.0, "label": "by id"}).json()
     page.fill("#lookup-id", newest["id"])
     page.press("#lookup-id", "Enter")
     expect(page.locator("#state-head")).to_have_attribute("data-request", newest["id"])
@@ -325,6 +327,22 @@ def test_zoom_pan_filter_and_robot_details(page: Any, system: System,
     expect(page.locator("#forest-summary")).not_to_have_text(before)
     assert page.input_value("#loc-x") == "", "a drag is not a click: no fire placed"
     page.keyboard.press("0")
+    expect(svg).to_have_attribute("data-zoom", "1.00")
+    # A pinch (two touches moving apart) zooms in by as much as they spread.
+    page.evaluate("""() => {
+        const svg = document.getElementById("map");
+        const r = svg.getBoundingClientRect();
+        const [x, y] = [r.x + r.width / 2, r.y + r.height / 2];
+        const touch = (type, id, dx) => svg.dispatchEvent(new PointerEvent(type, {
+            pointerId: id, pointerType: "touch", clientX: x + dx, clientY: y, button: 0,
+            bubbles: true}));
+        touch("pointerdown", 11, -20); touch("pointerdown", 12, 20);
+        touch("pointermove", 11, -60); touch("pointermove", 12, 60);
+        touch("pointerup", 11, -60); touch("pointerup", 12, 60);
+    }""")
+    expect(svg).to_have_attribute("data-zoom", "3.00")
+    assert page.input_value("#loc-x") == "", "a pinch is not a tap"
+    page.click("#zoom-reset")
     expect(svg).to_have_attribute("data-zoom", "1.00")
 
     # Filters: by cloud, by status, by capability; the counts say so.

@@ -9,6 +9,8 @@ The tests run in order on one set of clouds, the last one killing a cloud:
   again the request is found: one request, never "not sent";
 - a robot's battery dies during a task: an alert, and the request's time,
   cost and coalition as the API now gives them;
+- the wildfire server frozen: the page greys what it shows and says so,
+  until the server sends again;
 - a cloud killed: an alert within 5 s, its robots greyed with their age, the
   page working on with the others.
 """
@@ -63,7 +65,7 @@ def test_a_send_during_a_frozen_home_iaas_is_not_confirmed_then_found(
     console.expect(r"status of 50[24]")  # the sends that timed out
     type_fire(page, 900, 1100)
     fill_limits(page, label="frozen send")
-    want(page, {"grabber": 1})
+    want(page, {most_idle(page, "actuating"): 1})
     page.evaluate(RECORD_RESULTS)
     system.freeze("cloud-a")
     frozen_at = time.monotonic()
@@ -105,15 +107,23 @@ def test_a_send_during_a_frozen_home_iaas_is_not_confirmed_then_found(
     expect(alerts).to_contain_text("cloud-a is back")
 
 
-@pytest.mark.xfail(strict=False, reason="the IaaS is being fixed so that after a replacement a "
-                   "request's time and cost describe the coalition now at work")
+def most_idle(page: Any, kind: str) -> str:
+    """The capability of ``kind`` with the most idle robots, as the form's tiles say."""
+    counts = page.eval_on_selector_all(
+        f"#caps-{kind} .cap", "cs => cs.map(c => [c.dataset.cap, "
+        "parseInt(c.querySelector('.avail').textContent)])")
+    name, idle = max(counts, key=lambda c: c[1])
+    assert idle >= 2, f"too few idle robots for a replacement: {counts}"
+    return str(name)
+
+
 def test_a_robot_failure_is_alerted_with_the_new_time_and_cost(page: Any, system: System,
                                                                 screenshots: Path) -> None:
     wait_for_fleet(page, ROBOTS * 3)
     expect(page.locator("#cloud-health li[data-status='up']")).to_have_count(3, timeout=20_000)
     type_fire(page, 1950, 1950)  # far, so the robots are still on their way
     fill_limits(page, max_time="1000000", label="battery test", max_robots="5")
-    want(page, {"grabber": 1})
+    want(page, {most_idle(page, "actuating"): 1})
     request_id = send(page)
     state = page.locator("#state-head")
     expect(state).to_have_attribute("data-state", "underway", timeout=20_000)
@@ -131,17 +141,43 @@ def test_a_robot_failure_is_alerted_with_the_new_time_and_cost(page: Any, system
     expect(page.locator("#alert-list")).to_contain_text(f"robot {victim} replaced by")
     page.click("#alerts-button")
     expect(page.locator(f"#coalition tbody tr[data-robot='{victim}']")).to_have_count(0)
+    expect(state).to_have_attribute("data-state", "underway")
     with system.iaas() as client:
         now = client.get(f"/v1/requests/{request_id}").json()
     page.screenshot(path=str(screenshots / "robot-replaced.png"))
-    # The page shows what the API says; the API must describe the new coalition.
+    # The page shows what the API says.
     expect(page.locator("#stat-cost")).to_have_text(f"{now['cost']:,.2f} credits")
     assert victim not in [a["robot"] for a in now["coalition"]]
+    # And the API must describe the coalition now at work (the lead is fixing it).
     costs = sum(a["cost"] for a in now["coalition"])
-    assert now["cost"] == pytest.approx(costs), "the request's cost is its coalition's"
-    assert max(a["time"] for a in now["coalition"]) == pytest.approx(now["time"])
+    if now["cost"] != pytest.approx(costs) or max(
+            a["time"] for a in now["coalition"]) != pytest.approx(now["time"]):
+        pytest.xfail(f"the API's cost {now['cost']:.2f} and time {now['time']:.1f} are not its "
+                     f"coalition's ({costs:.2f}, {max(a['time'] for a in now['coalition']):.1f}) "
+                     "after a replacement: the IaaS is being fixed")
     assert (page.inner_text("#stat-time"), page.inner_text("#stat-cost")) != (
         before["time"], before["cost"])
+
+
+def test_a_silent_wildfire_server_greys_the_page_until_it_is_back(page: Any, system: System,
+                                                                  screenshots: Path) -> None:
+    wait_for_fleet(page, ROBOTS * 3)
+    system.freeze("wildfire")
+    try:
+        banner = page.locator("#banner")
+        expect(banner).to_contain_text("The wildfire server has sent nothing for 5 s",
+                                       timeout=10_000)
+        expect(page.locator("body")).to_have_attribute("data-link", "silent")
+        expect(page.locator("#connection")).to_have_attribute("data-state", "down")
+        expect(page.locator("#connection-text")).to_contain_text("server lost")
+        grey = page.eval_on_selector("#map .robot", "r => getComputedStyle(r).filter")
+        assert "grayscale" in grey
+        page.screenshot(path=str(screenshots / "wildfire-server-silent.png"))
+    finally:
+        system.thaw("wildfire")
+    expect(page.locator("#banner")).to_contain_text("The wildfire server answers again",
+                                                    timeout=10_000)
+    expect(page.locator("body")).to_have_attribute("data-link", "live")
 
 
 def test_a_killed_cloud_is_alerted_and_its_robots_greyed(page: Any, system: System,
@@ -173,7 +209,7 @@ def test_a_killed_cloud_is_alerted_and_its_robots_greyed(page: Any, system: Syst
     page.select_option("#filter-status", "")
     type_fire(page, 1000, 900)
     fill_limits(page, label="after the loss")
-    want(page, {"grabber": 1})
+    want(page, {most_idle(page, "actuating"): 1})
     request_id = send(page)
     expect(page.locator("#state-head")).to_have_attribute("data-request", request_id)
     expect(page.locator("#state-head")).to_have_attribute(

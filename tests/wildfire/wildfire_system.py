@@ -166,12 +166,14 @@ class System:
     def cloud(self, name: str) -> Cloud:
         return next(c for c in self.members if c.name == name)
 
-    def freeze(self, cloud: str) -> None:
-        """Stop a cloud's IaaS process dead (SIGSTOP): its sockets stay open, nothing answers."""
-        self.processes[f"{cloud}-iaas"].send_signal(signal.SIGSTOP)
+    def freeze(self, part: str) -> None:
+        """Stop a process dead (SIGSTOP): its sockets stay open, nothing answers.
 
-    def thaw(self, cloud: str) -> None:
-        self.processes[f"{cloud}-iaas"].send_signal(signal.SIGCONT)
+        ``part`` is a cloud (its IaaS) or ``wildfire``."""
+        self.processes[part if part == "wildfire" else f"{part}-iaas"].send_signal(signal.SIGSTOP)
+
+    def thaw(self, part: str) -> None:
+        self.processes[part if part == "wildfire" else f"{part}-iaas"].send_signal(signal.SIGCONT)
 
     def kill_cloud(self, cloud: str) -> None:
         """A cloud gone at once: its IaaS and its robots, killed."""

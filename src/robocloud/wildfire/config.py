@@ -93,7 +93,7 @@ class WildfireSettings:
     # How often the fleet, the clouds and the requests are read and pushed.
     tick: float = 1.0
     # A robot not heard from for this long is shown stale, greyed with its age.
-    stale_after: float = 3.0
+    stale_after: float = 5.0
     max_live_pages: int = 100
 
     def __post_init__(self) -> None:

@@ -367,8 +367,9 @@ class LiveModel:
     def capability_offers(self, now: float) -> list[dict[str, Any]]:
         """Capabilities the live fleet has, with how many fresh idle robots bring each."""
         counts: dict[tuple[str, str], list[int]] = {}
+        down = {c.name for c in self.clouds.values() if c.status != "up"}
         for robot in self.robots.values():
-            fresh = now - robot.heard <= self.settings.stale_after
+            fresh = now - robot.heard <= self.settings.stale_after and robot.row[1] not in down
             idle = fresh and robot.row[COLUMN["status"]] == "idle"
             for name in robot.row[COLUMN["capabilities"]]:
                 kind = robot.kinds.get(name, "sensing")

@@ -24,6 +24,7 @@ const page = {
   cardRobot: null,
   tab: "send",
   tableTab: "requests",
+  snapshots: 0,
 };
 
 // --- announcements for screen readers (the panels change too often to be live) ---
@@ -57,6 +58,11 @@ const requestsTable = new RequestsTable($("requests-table"), { live, onRow: (id)
 
 // --- the live feed -----------------------------------------------------------------
 function onSnapshot() {
+  // A snapshot after the first is a reconnection: what was missed is read again.
+  if (page.snapshots++) {
+    reloadRequests(0);
+    refreshSelected();
+  }
   setCloudColours(live.clouds);
   applyConfig();
   const seen = new Set();
@@ -353,6 +359,7 @@ $("requests-newer").addEventListener("click", () => {
 
 // --- REQUEST STATE ------------------------------------------------------------------------
 async function select(id) {
+  page.autoSelected = true;
   page.selectedId = id;
   page.selectedRev = null;
   $("lookup-id").value = id;
@@ -392,6 +399,7 @@ function showRequest(request) {
 
 $("lookup-form").addEventListener("submit", async (event) => {
   event.preventDefault();
+  page.autoSelected = true;  // the operator chose: the first list must not select over it
   const input = $("lookup-id");
   const id = input.value.trim();
   if (!id) {

@@ -33,30 +33,38 @@ function sameRobots(a, b) {
   return x.length === y.length && x.every((r, i) => r === y[i]);
 }
 
-// The member chosen at selection: the coalition itself, or (once a robot was
-// replaced) the member the history's dispatch named, or the one at the
-// request's time and cost.
+// The member chosen at selection: the one the history's dispatch named (a
+// replacement changes the coalition, not what was chosen), else the coalition
+// itself, else the one at the request's time and cost.
 export function isChosen(member, request) {
-  const coalition = (request.coalition || []).map((a) => a.robot);
-  if (coalition.length && sameRobots(member.robots, coalition)) return true;
   const dispatched = (request.history || []).find((h) => h.kind === "state" && h.state === "dispatched");
   const named = dispatched && /robots?: (.+)$/.exec(dispatched.detail || "");
   if (named) return sameRobots(member.robots, named[1].split(",").map((r) => r.trim()));
-  return !coalition.length && request.time !== null && request.cost !== null
+  const coalition = (request.coalition || []).map((a) => a.robot);
+  if (coalition.length) return sameRobots(member.robots, coalition);
+  return request.time !== null && request.cost !== null
     && near(member.time, request.time) && near(member.cost, request.cost);
 }
 
 export function drawFront(request, { currency = "" } = {}) {
   const front = request.pareto || [];
   const coalition = (request.coalition || []).map((a) => a.robot);
-  const current = coalition.length && !front.some((m) => sameRobots(m.robots, coalition))
-    && Number.isFinite(request.time) && Number.isFinite(request.cost)
-    ? { time: request.time, cost: request.cost, size: coalition.length } : null;
+  // The coalition at work, when a replacement made it another than the chosen one:
+  // on the front if it is a member, else where the request's time and cost put it.
+  const chosenMember = front.find((m) => isChosen(m, request));
+  let current = null;
+  if (coalition.length && !(chosenMember && sameRobots(chosenMember.robots, coalition))) {
+    const member = front.find((m) => sameRobots(m.robots, coalition));
+    if (member) current = member;
+    else if (Number.isFinite(request.time) && Number.isFinite(request.cost)) {
+      current = { time: request.time, cost: request.cost, size: coalition.length };
+    }
+  }
   const plot = svg("svg", {
     viewBox: `0 0 ${W} ${H}`, role: "img", class: "front-plot",
     "aria-label": `Pareto front: ${front.length} coalition${front.length === 1 ? "" : "s"}, time against cost`,
   });
-  const points = current ? [...front, current] : front;
+  const points = current && !front.includes(current) ? [...front, current] : front;
   const [t0, t1] = domain(points.map((m) => m.time));
   const [c0, c1] = domain(points.map((m) => m.cost));
   const x = (t) => M.left + ((t - t0) / (t1 - t0)) * (W - M.left - M.right);
@@ -79,7 +87,7 @@ export function drawFront(request, { currency = "" } = {}) {
   plot.append(axis);
 
   // The biggest first, so a small coalition is never hidden under a big one.
-  const members = [...front].sort((a, b) => b.size - a.size);
+  const members = [...front].filter((m) => m !== current).sort((a, b) => b.size - a.size);
   let chosenPoint = null;
   for (const member of members) {
     const chosen = isChosen(member, request);

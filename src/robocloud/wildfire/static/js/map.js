@@ -52,6 +52,7 @@ export class ForestMap {
     this.svg.addEventListener("keydown", (e) => this.key(e));
     this.svg.addEventListener("mouseover", (e) => this.hover(e));
     this.ageOf = () => null;
+    this.scale = "1.00";
     this.redraw();
   }
 
@@ -131,6 +132,7 @@ export class ForestMap {
 
   redraw() {
     this.svg.classList.add("instant");
+    this.scale = this.robotScale();
     this.drawGround();
     for (const entry of this.robots.values()) this.place(entry);
     this.drawFire();
@@ -198,6 +200,7 @@ export class ForestMap {
       this.layers.robots.append(group);
     }
     entry.robot = robot;
+    if (this.robotScale() !== this.scale) this.redraw();
     const status = STATUSES.includes(robot.status) ? robot.status : "offline";
     if (status !== entry.status) {
       const shape = shapeFor(status);
@@ -226,7 +229,14 @@ export class ForestMap {
 
   place(entry) {
     const [sx, sy] = this.toScreen([entry.robot.x, entry.robot.y]);
-    entry.group.style.transform = `translate(${sx.toFixed(1)}px, ${sy.toFixed(1)}px)`;
+    entry.group.style.transform = `translate(${sx.toFixed(1)}px, ${sy.toFixed(1)}px) scale(${this.scale})`;
+  }
+
+  // A crowded forest draws its robots smaller; zooming in brings them back.
+  robotScale() {
+    const n = this.robots.size;
+    const base = n > 600 ? 0.62 : n > 250 ? 0.8 : 1;
+    return Math.min(1, base * Math.sqrt(this.view.k)).toFixed(2);
   }
 
   describe(robot) {

@@ -35,6 +35,7 @@ class FakeIaas:
         self.keys: dict[str, str] = {}
         self.calls: list[httpx.Request] = []
         self.answer: Callable[[httpx.Request], httpx.Response] | None = None
+        self.answer_only: str | None = None  # a method: ``answer`` for it alone
         self.down = False
         self.hang = False
         self.listing: list[dict[str, Any]] | None = None  # GET /v1/clouds
@@ -64,7 +65,7 @@ class FakeIaas:
             raise httpx.ConnectError("Connection refused", request=request)
         if self.hang:
             raise httpx.ReadTimeout("timed out", request=request)
-        if self.answer is not None:
+        if self.answer is not None and self.answer_only in (None, request.method):
             return self.answer(request)
         path, method = request.url.path, request.method
         if path == "/healthz":

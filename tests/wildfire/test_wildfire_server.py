@@ -207,8 +207,8 @@ def test_a_request_is_sent_as_given_to_the_first_iaas(client: TestClient, cloud_
     assert answer.status_code == 202
     body = answer.json()
     assert body["held_by"] == "cloud-a" and body["label"] == "ridge"
-    sent = cloud_a.calls[-1]
-    assert sent.method == "POST" and sent.url.path == "/v1/requests"
+    [sent] = [c for c in cloud_a.calls if c.method == "POST"]
+    assert sent.url.path == "/v1/requests"
     assert json.loads(sent.content) == task
     assert sent.headers["idempotency-key"] == "k-1"
     # The same key again is the same request.
@@ -251,7 +251,11 @@ def test_a_send_refused_before_it_left_goes_to_the_next_iaas(
 
 def test_an_iaas_failing_inside_may_hold_the_request(client: TestClient,
                                                      cloud_a: FakeIaas) -> None:
-    cloud_a.answer = lambda _: __import__("httpx").Response(
+    import httpx
+
+    # Its health stays good: the send goes to it, not to cloud-b.
+    cloud_a.answer_only = "POST"
+    cloud_a.answer = lambda _: httpx.Response(
         500, json={"detail": "the IaaS hit an internal error; it is logged."})
     answer = client.post("/api/requests", json=TASK, headers={"Idempotency-Key": "k-4"})
     assert answer.status_code == 500

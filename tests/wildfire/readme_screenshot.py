@@ -55,7 +55,7 @@ def main(output: Path) -> None:
                 expect(page.locator("#state-head")).to_have_attribute("data-state", "canceled")
                 # One the fleet cannot meet: its reason is kept.
                 send(page, 300, 1800, {"grabber": 5, "light": 3}, "north ridge", "time",
-                     max_time="300")
+                     max_time="60")
                 expect(page.locator("#state-head")).to_have_attribute(
                     "data-state", "rejected", timeout=20_000)
                 # The one in the picture: two grabbers and a touch sensor.

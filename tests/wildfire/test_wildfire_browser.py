@@ -277,6 +277,11 @@ def test_the_keyboard_alone_places_the_fire_and_sends(page: Any, system: System)
     expect(page.locator("#loc-x")).to_have_value("1025")
     expect(page.locator("#loc-y")).to_have_value("1100")
     expect(page.locator("#map-status")).to_have_text("Fire placed at x 1025, y 1100.")
+    # On to the far corner (the forest's edge stops it), so the robots are long on their way.
+    for _ in range(12):
+        page.keyboard.press("Shift+ArrowLeft")
+        page.keyboard.press("Shift+ArrowDown")
+    expect(page.locator("#map-status")).to_have_text("Fire placed at x 0, y 0.")
     page.focus("#send")
     page.keyboard.press("Enter")
     expect(page.locator("#send-result")).to_have_text(re.compile(r"^Sent req-"))

@@ -38,6 +38,7 @@ same seed gives the same coalitions.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal
 
@@ -46,6 +47,7 @@ import numpy.typing as npt
 
 from robocloud.domain import Coalition
 from robocloud.errors import InvalidInput
+from robocloud.selection.budget import NO_DEADLINE, Deadline
 from robocloud.selection.mopso_repository import Repository, dominates_rows
 from robocloud.selection.pareto import pareto_front
 from robocloud.selection.problem import CoalitionProblem
@@ -122,6 +124,15 @@ def _between(value: object, low: float, high: float) -> bool:
     )
 
 
+@dataclass(frozen=True)
+class MopsoOutcome:
+    """REP's front; ``complete`` unless the deadline stopped the iterations early."""
+
+    front: list[Coalition]
+    complete: bool
+    iterations: int
+
+
 def mopso(
     problem: CoalitionProblem, pool: IntArray, settings: MopsoSettings = MopsoSettings()
 ) -> list[Coalition]:
@@ -130,6 +141,24 @@ def mopso(
     Returns REP's feasible coalitions, mutually non-dominated and sorted as
     :func:`robocloud.selection.pareto.pareto_front` sorts them; empty when no
     coalition of the pool is feasible.
+    """
+    return mopso_search(problem, pool, settings).front
+
+
+def mopso_search(
+    problem: CoalitionProblem,
+    pool: IntArray,
+    settings: MopsoSettings = MopsoSettings(),
+    *,
+    seeds: Sequence[IntArray] = (),
+    deadline: Deadline = NO_DEADLINE,
+) -> MopsoOutcome:
+    """``mopso`` with seed coalitions and a deadline.
+
+    ``seeds`` are coalitions (indices into ``problem``, within ``pool``) that
+    replace some of the random initial particles (steps 2-3), e.g. the
+    cheap covers of :func:`robocloud.selection.pool.seed_covers`. The
+    deadline is checked between iterations; REP as it stands is the answer.
     """
     pool = _checked_pool(problem, pool)
     # A robot slower or dearer on its own than the thresholds is in no
@@ -145,11 +174,24 @@ def mopso(
     if len(pool) == 0 or (problem.uses[pool].sum(axis=0) < problem.need).any():
         # Only the empty coalition is left, feasible when nothing is required.
         empty = np.zeros((1, problem.size), dtype=bool)
-        return [problem.coalition([])] if problem.feasible(empty)[0] else []
-    swarm = _Swarm(problem.subproblem(pool), settings)
+        front = [problem.coalition([])] if problem.feasible(empty)[0] else []
+        return MopsoOutcome(front, True, 0)
+    position = {int(r): j for j, r in enumerate(pool)}
+    rows = np.zeros((len(seeds), len(pool)), dtype=bool)
+    for row, seed in zip(rows, seeds, strict=True):
+        inside = [position[int(r)] for r in seed if int(r) in position]
+        if len(inside) == len(seed):
+            row[inside] = True
+    rows = rows[rows.any(axis=1)]
+    swarm = _Swarm(problem.subproblem(pool), settings, rows)
+    done = 0
     for iteration in range(settings.iterations):  # step 9
+        if deadline.expired():
+            break
         swarm.next(iteration)
-    return pareto_front(problem.coalition(pool[np.flatnonzero(row)]) for row in swarm.rep.members)
+        done += 1
+    front = pareto_front(problem.coalition(pool[np.flatnonzero(row)]) for row in swarm.rep.members)
+    return MopsoOutcome(front, done == settings.iterations, done)
 
 
 def _checked_pool(problem: CoalitionProblem, pool: IntArray) -> IntArray:
@@ -169,7 +211,9 @@ class _Swarm:
     """One run of Algorithm 4 on the pool's subproblem: set up (steps 2-8),
     then ``next`` once per iteration (steps 10-18)."""
 
-    def __init__(self, problem: CoalitionProblem, settings: MopsoSettings) -> None:
+    def __init__(
+        self, problem: CoalitionProblem, settings: MopsoSettings, seeds: BoolArray | None = None
+    ) -> None:
         self.problem = problem
         self.settings = settings
         self.rng = np.random.default_rng(settings.seed)
@@ -182,6 +226,10 @@ class _Swarm:
         self.rep = Repository(problem.size, settings.repository_size, settings.grid_divisions)
         # Steps 2-4: positions, each particle's preference, velocities.
         self.position, self.preference = self._initial_swarm()
+        if seeds is not None and len(seeds):
+            # Seed coalitions take the places of the last random particles.
+            take = min(len(seeds), max(self.settings.swarm_size // 2, 1))
+            self.position[-take:] = seeds[:take]
         self.velocity = self.rng.uniform(-1.0, 1.0, size=self.position.shape)
         # Step 5 (Algorithm 5) and step 6: the feasible non-dominated go to REP.
         objectives, violation = self._evaluate(self.position)

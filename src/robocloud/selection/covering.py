@@ -166,19 +166,23 @@ class CoverSolver:
         self._refresh(np.unique(self.column_class[changed]).tolist())
 
     def _refresh(self, classes: range | list[int]) -> None:
-        """Per class: the allowed costs in (cost, id) order and their prefix sums."""
+        """Per class: the allowed columns in (cost, id) order, their costs and prefix sums."""
         if not self._costs:
+            self._columns: list[IntArray] = [np.zeros(0, dtype=np.int64)] * self.classes
             self._costs = [np.zeros(0)] * self.classes
             self._prefix = [np.zeros(1)] * self.classes
+            self._available = np.zeros(self.classes, dtype=np.int64)
         for m in classes:
             lo, hi = self.start[m], self.start[m + 1]
-            costs = self.column_cost[lo:hi][self.allowed[lo:hi]]
-            self._costs[m] = costs
-            self._prefix[m] = np.concatenate(([0.0], np.cumsum(costs)))
+            columns = lo + np.flatnonzero(self.allowed[lo:hi])
+            self._columns[m] = columns
+            self._costs[m] = self.column_cost[columns]
+            self._prefix[m] = np.concatenate(([0.0], np.cumsum(self._costs[m])))
+            self._available[m] = columns.size
 
     def available(self) -> IntArray:
         """How many robots of each class are allowed."""
-        return np.array([c.size for c in self._costs], dtype=np.int64)
+        return self._available
 
     # --- the linear relaxation ----------------------------------------------
 
@@ -257,36 +261,42 @@ class CoverSolver:
         tolerance); None when no cheapest one is that fast."""
         chosen: list[IntArray] = []
         limit = time_limit + tolerance(time_limit) if math.isfinite(time_limit) else math.inf
-        for m, x in enumerate(counts.tolist()):
-            if x == 0:
-                continue
-            lo, hi = self.start[m], self.start[m + 1]
-            allowed = np.flatnonzero(self.allowed[lo:hi]) + lo
-            cost = self.column_cost[allowed]
+        for m in np.flatnonzero(counts).tolist():
+            x = int(counts[m])
+            columns = self._columns[m]
+            cost = self._costs[m]
             boundary = cost[x - 1]
-            below = allowed[cost < boundary]
-            at = allowed[cost == boundary]
+            # The cheapest x are every robot below the boundary cost and the
+            # rest from those at it: the earliest ids among those fast enough.
+            below = columns[: int(np.searchsorted(cost, boundary, side="left"))]
+            if below.size == x and self.column_time[below].max() <= limit:
+                chosen.append(self.column_robot[below])
+                continue
+            at = columns[below.size : int(np.searchsorted(cost, boundary, side="right"))]
             at = at[self.column_time[at] <= limit]
             if (self.column_time[below] > limit).any() or at.size < x - below.size:
                 return None
-            robots = self.column_robot[at]
-            pick = robots[np.argsort(self.id_rank[robots], kind="stable")[: x - below.size]]
-            chosen += [self.column_robot[below], pick]
+            # Columns at one cost are in id order already.
+            chosen += [self.column_robot[below], self.column_robot[at[: x - below.size]]]
         return np.sort(np.concatenate(chosen)) if chosen else np.zeros(0, dtype=np.int64)
 
     def fastest(self, counts: IntArray) -> float:
         """The least T over the cheapest coalitions with these counts."""
         worst = -math.inf
-        for m, x in enumerate(counts.tolist()):
-            if x == 0:
-                continue
-            lo, hi = self.start[m], self.start[m + 1]
-            allowed = np.flatnonzero(self.allowed[lo:hi]) + lo
-            cost = self.column_cost[allowed]
+        for m in np.flatnonzero(counts).tolist():
+            x = int(counts[m])
+            columns = self._columns[m]
+            cost = self._costs[m]
             boundary = cost[x - 1]
-            below = self.column_time[allowed[cost < boundary]]
-            at = np.sort(self.column_time[allowed[cost == boundary]])
-            worst = max(worst, float(below.max(initial=-math.inf)), float(at[x - below.size - 1]))
+            first = int(np.searchsorted(cost, boundary, side="left"))
+            last = int(np.searchsorted(cost, boundary, side="right"))
+            times = self.column_time[columns[:last]]
+            if first:
+                worst = max(worst, float(times[:first].max()))
+            if last - first == x - first or x == first:
+                worst = max(worst, float(times[first:x].max(initial=-math.inf)))
+            else:
+                worst = max(worst, float(np.partition(times[first:], x - first - 1)[x - first - 1]))
         return worst
 
 

@@ -244,20 +244,30 @@ class _Sweep:
     def run(self, largest: int, keep: IntArray) -> ExactOutcome:
         size_limit = largest
         previous_top = 0
+        # The steps of the last sweep: a sweep with a smaller size limit
+        # repeats them for as long as their answers fit that limit (their ties
+        # of at most n robots are then exactly its ties), and only solves
+        # afresh from the first step where they no longer do.
+        history: list[CoverResult] = []
         while size_limit >= 1:
             self.solver.allow_all()
             top = 0
             last_time: float | None = None
+            replay, history = history, []
             while True:
                 if self.deadline.expired() or self.members >= MAX_FOUND_MEMBERS:
                     return self._cut(keep, last_time, previous_top, None)
-                result = self.solver.solve(size_limit)
-                self.steps += 1
-                self.nodes += result.nodes
+                result = self._replayed(replay, len(history), size_limit)
+                if result is None:
+                    replay = []
+                    result = self.solver.solve(size_limit)
+                    self.steps += 1
+                    self.nodes += result.nodes
                 if result.status == "cut":
                     return self._cut(keep, last_time, previous_top, result)
                 if result.status == "infeasible" or not self._affordable(result.cost):
                     break
+                history.append(result)
                 last_time, biggest = self._keep(result, None)
                 top = max(top, biggest)
                 self.solver.allow_faster_than(last_time)
@@ -266,6 +276,17 @@ class _Sweep:
             previous_top = top
             size_limit = top - 1
         return ExactOutcome(pareto_front(self.found), True, EXACT, self.steps, self.nodes)
+
+    @staticmethod
+    def _replayed(replay: list[CoverResult], step: int, size_limit: int) -> CoverResult | None:
+        """The earlier sweep's answer at this step, narrowed to ``size_limit``, if it holds."""
+        if step >= len(replay):
+            return None
+        earlier = replay[step]
+        ties = tuple(x for x in earlier.ties if int(x.sum()) <= size_limit)
+        if not ties:
+            return None
+        return CoverResult("optimal", earlier.cost, ties, earlier.cost, 0)
 
     def _cut(
         self,

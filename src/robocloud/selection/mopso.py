@@ -62,6 +62,9 @@ MAX_VELOCITY = 4.0
 # How much randomness the repair's preference order gets, against a spread
 # of 1 between the best and the worst robot.
 REPAIR_NOISE = 0.15
+# The share of particles that step along the time-cost trade-off after each
+# iteration's repair (``_Swarm._polish``).
+TIGHTEN_SHARE = 0.3
 # Coello's mutation: the share of particles mutated at iteration t is
 # (1 - t / (iterations * mutation_rate)) ** MUTATION_DECAY.
 MUTATION_DECAY = 1.5
@@ -223,6 +226,14 @@ class _Swarm:
         self.uses_float = problem.uses.astype(np.float64)
         self.brings_float = np.ascontiguousarray(self.uses_float.T)
         self.features = self._features()
+        # The pool's robots by class (the set of required capabilities they
+        # bring), each class cheapest first: what ``_polish`` picks from.
+        _, member = np.unique(problem.uses, axis=0, return_inverse=True)
+        member = member.reshape(-1)
+        self.classes = [
+            np.flatnonzero(member == c)[np.argsort(problem.cost[member == c], kind="stable")]
+            for c in range(int(member.max(initial=-1)) + 1)
+        ]
         self.rep = Repository(problem.size, settings.repository_size, settings.grid_divisions)
         # Steps 2-4: positions, each particle's preference, velocities.
         self.position, self.preference = self._initial_swarm()
@@ -268,7 +279,8 @@ class _Swarm:
         penalty[:g] = seed_penalty
         noise = np.zeros(size)
         noise[g:] = REPAIR_NOISE
-        return self._repair(start, preference, penalty, noise), preference
+        repaired = self._repair(start, preference, penalty, noise)
+        return self._polish(repaired, np.zeros(size, dtype=bool)), preference
 
     def _greedy_preferences(self) -> tuple[FloatArray, FloatArray]:
         """Preferences (and penalties on robots past a cap) of the greedy seeds.
@@ -313,9 +325,10 @@ class _Swarm:
         )
         position = rng.random((size, m)) < 1.0 / (1.0 + np.exp(-self.velocity))
         position = self._mutate(position, iteration)
-        self.position = self._repair(
+        position = self._repair(
             position, self.preference, np.zeros((size, m)), np.full(size, REPAIR_NOISE)
         )
+        self.position = self._polish(position, rng.random(size) < TIGHTEN_SHARE)
         # Algorithm 5 and step 18.
         objectives, violation = self._evaluate(self.position)
         feasible = violation == 0
@@ -336,6 +349,36 @@ class _Swarm:
         # Drawn with replacement: a bit drawn twice flips once.
         flip[np.arange(size)[:, None], self.rng.integers(0, m, size=(size, flips))] = True
         return np.asarray(position ^ (mutated[:, None] & flip))
+
+    def _polish(self, position: BoolArray, tighten: BoolArray) -> BoolArray:
+        """Each particle keeps how many robots it has of each class, but takes the
+        cheapest robots of that class no slower than its T; those in ``tighten``
+        take them strictly faster than their T, when enough are.
+
+        A class is a set of required capabilities; robots of one class are
+        interchangeable for coverage, so coverage and N stay, and T and C get
+        no worse: a polished particle weakly dominates the one it was. A
+        tightened particle steps along the time-cost trade-off instead (T
+        down, C up), as the exact optimizer's sweep does.
+        """
+        p = self.problem
+        time, _, _ = p.evaluate(position)
+        limit = time + np.maximum(1e-6, 1e-9 * np.abs(time))
+        limit[tighten] = time[tighten] - np.maximum(1e-6, 1e-9 * np.abs(time[tighten]))
+        polished = np.zeros_like(position)
+        enough = np.ones(len(position), dtype=bool)
+        for members in self.classes:
+            counts = position[:, members].sum(axis=1)
+            eligible = p.time[members][None, :] <= limit[:, None]
+            rank = np.cumsum(eligible, axis=1)
+            polished[:, members] = eligible & (rank <= counts[:, None])
+            enough &= rank[:, -1] >= counts
+        keep = enough | ~tighten
+        if not keep.all():
+            # Too few faster robots: the particle is polished without tightening.
+            loose = self._polish(position[~keep], np.zeros(int((~keep).sum()), dtype=bool))
+            polished[~keep] = loose
+        return np.asarray(polished)
 
     def _repair(
         self,

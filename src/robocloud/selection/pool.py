@@ -39,12 +39,18 @@ def build_pool(
     extra: list[IntArray] | None = None,
 ) -> IntArray:
     """Indices into ``problem``: the first ``size`` of ``order``, then the
-    witness and the robots of ``extra`` coalitions, best ranked first."""
+    witness's robots, best ranked first.
+
+    ``extra`` (from ``seed_covers``, whose first cover is the witness) stands
+    in for the witness search when given.
+    """
     top = [int(i) for i in order[: max(size, 0)]]
     chosen = set(top)
-    witness = cover_witness(problem, survivors, deadline)
-    more = {int(i) for i in witness} if witness is not None else set()
-    for coalition in extra or []:
+    if extra is None:
+        witness = cover_witness(problem, survivors, deadline)
+        extra = [witness] if witness is not None else []
+    more: set[int] = set()
+    for coalition in extra:
         more |= {int(i) for i in coalition}
     rank = {int(i): r for r, i in enumerate(order)}
     top += sorted((i for i in more if i not in chosen), key=rank.__getitem__)
@@ -88,28 +94,32 @@ def greedy_cover(problem: CoalitionProblem, robots: IntArray) -> IntArray | None
 def seed_covers(
     problem: CoalitionProblem, survivors: IntArray, deadline: Deadline = NO_DEADLINE
 ) -> list[IntArray]:
-    """Cheapest covers under ``SEED_COVERS`` time limits spread over the candidates' times.
+    """The witness, then cheapest covers under time limits spread over the candidates' times.
 
-    Each search is bounded like the witness's; a limit whose search finds
-    nothing is skipped. Used to start MOPSO from good coalitions along the
-    time-cost trade-off.
+    The first cover is ``cover_witness``'s (all robots allowed). Then up to
+    ``SEED_COVERS`` - 1 tighter time limits, each search bounded like the
+    witness's; the first limit whose search finds nothing ends the list (a
+    tighter one allows even fewer robots). MOPSO starts from these, spread
+    along the time-cost trade-off.
     """
     if survivors.size == 0 or problem.largest_useful_coalition < 1:
         return []
     solver = CoverSolver(problem, survivors, deadline)
     times = np.sort(problem.time[survivors])
     limits = np.quantile(times, np.linspace(1.0, 0.0, SEED_COVERS, endpoint=False))
+    limits[0] = np.inf
     covers: list[IntArray] = []
-    for limit in limits.tolist():
+    affordable = problem.max_cost + max(ABS_TOL, REL_TOL * problem.max_cost)
+    for step, limit in enumerate(limits.tolist()):
         if deadline.expired():
             break
-        solver.allow_faster_than(limit + max(ABS_TOL, REL_TOL * abs(limit)) * 2)
+        if step:
+            solver.allow_faster_than(limit + max(ABS_TOL, REL_TOL * abs(limit)) * 2)
         result = solver.solve(problem.largest_useful_coalition, POOL_NODES)
-        if not result.ties:
-            break  # a tighter limit allows even fewer robots
-        members = solver.coalition(result.ties[0])
-        if members is not None and problem.cost[members].sum() <= problem.max_cost + max(
-            ABS_TOL, REL_TOL * problem.max_cost
-        ):
-            covers.append(members)
+        members = solver.coalition(result.ties[0]) if result.ties else None
+        if step == 0 and members is None and result.status == "cut":
+            members = greedy_cover(problem, survivors)
+        if members is None or (step and problem.cost[members].sum() > affordable):
+            break
+        covers.append(members)
     return covers

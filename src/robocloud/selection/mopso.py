@@ -328,7 +328,8 @@ class _Swarm:
         position = self._repair(
             position, self.preference, np.zeros((size, m)), np.full(size, REPAIR_NOISE)
         )
-        self.position = self._polish(position, rng.random(size) < TIGHTEN_SHARE)
+        tighten = np.asarray(rng.random(size) < TIGHTEN_SHARE)
+        self.position = self._polish(position, tighten)
         # Algorithm 5 and step 18.
         objectives, violation = self._evaluate(self.position)
         feasible = violation == 0

@@ -84,9 +84,10 @@ def repeats_for(robots: int, quick: bool) -> int:
 # --- measuring ---------------------------------------------------------------
 
 
-def timed(fn: Callable[[], T], repeats: int) -> tuple[list[float], list[T]]:
+def timed(fn: Callable[[], T], repeats: int, warm_up: bool = True) -> tuple[list[float], list[T]]:
     """A warm-up call, then ``repeats`` timed calls: (seconds, result) of each timed call."""
-    fn()
+    if warm_up:
+        fn()
     seconds, results = [], []
     for _ in range(repeats):
         gc.collect()
@@ -247,7 +248,9 @@ def measure(robots_count: int, quick: bool) -> SizeRun:
 
     exact_s, exacts = timed(lambda: select(robots, task, optimizer="exact"), repeats)
     mopso_s, mopsos = timed(lambda: select(robots, task, optimizer="mopso"), repeats)
-    nsga_s, peers = timed(lambda: peer_select(robots, task), repeats)
+    # NSGA-II takes seconds a run: one timed run in a smoke check.
+    nsga_s, peers = timed(lambda: peer_select(robots, task), 1 if quick else repeats,
+                          warm_up=not quick)
     exact, mopso, peer = exacts[-1], mopsos[-1], peers[-1]
     # Every run gives the same answer (fixed seeds); check it rather than assume it.
     deterministic = all(r.pareto == exact.pareto for r in exacts) and all(
@@ -256,7 +259,7 @@ def measure(robots_count: int, quick: bool) -> SizeRun:
 
     exact_mib = peak_mib(lambda: select(robots, task, optimizer="exact"))
     mopso_mib = peak_mib(lambda: select(robots, task, optimizer="mopso"))
-    nsga_mib = peak_mib(lambda: peer_select(robots, task))
+    nsga_mib = None if quick else peak_mib(lambda: peer_select(robots, task))
 
     hv_exact = hypervolume(exact.pareto, task)
     hv_mopso = hypervolume(mopso.pareto, task)
@@ -549,12 +552,14 @@ def measure_cell(robots: Sequence[Robot], base: Task, fleet: int, needed: int,
     peer: PeerResult | None = peer_select(robots, task)
     warm = time.perf_counter() - started
     nsga_s: list[float] = []
-    if warm <= NSGA2_MAX_S:
+    if quick:
+        nsga_s = [warm]  # a smoke check: the one run, no memory measurement
+    elif warm <= NSGA2_MAX_S:
         nsga_s, peers = timed(lambda: peer_select(robots, task), max(1, repeats - 1))
         peer = peers[-1]
     exact_mib = peak_mib(lambda: select(robots, task, optimizer="exact"))
     mopso_mib = peak_mib(lambda: select(robots, task, optimizer="mopso"))
-    nsga_mib = peak_mib(lambda: peer_select(robots, task)) if nsga_s else None
+    nsga_mib = peak_mib(lambda: peer_select(robots, task)) if nsga_s and not quick else None
     fronts: dict[str, Sequence[Coalition]] = {"exact": exact.pareto, "mopso": mopso.pareto}
     if nsga_s and peer is not None:
         fronts["nsga2"] = peer.pareto

@@ -232,7 +232,9 @@ class CoverSolver:
         remaining = self.deadline.remaining()
         if remaining <= 0:
             raise _Cut
-        self.highs.setOptionValue("time_limit", min(remaining, 1e6))
+        # HiGHS's clock runs on across the solves of one model: its limit is
+        # the time it has used so far plus what the deadline leaves.
+        self.highs.setOptionValue("time_limit", self.highs.getRunTime() + min(remaining, 1e6))
         self.highs.run()
         status = self.highs.getModelStatus()
         if status == highspy.HighsModelStatus.kInfeasible:

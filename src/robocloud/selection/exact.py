@@ -120,9 +120,11 @@ def prune(problem: CoalitionProblem) -> IntArray:
         kth = np.full(n_blocks, np.inf)
         running = np.full(limit, np.inf)
         for b in range(n_blocks):
+            # ``running`` holds the limit smallest so far, partitioned: the
+            # limit-th smallest at its end, no full sort needed.
             kth[b] = running[limit - 1]
             merged = np.concatenate((running, block_smallest[b]))
-            running = np.sort(np.partition(merged, limit - 1)[:limit])
+            running = np.partition(merged, limit - 1)[:limit]
         dominated = kth[np.arange(c.size) // _BLOCK] < c - margin
         survives[supersets[own & ~dominated]] = True
     return np.asarray(order[survives], dtype=np.int64)

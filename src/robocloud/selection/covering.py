@@ -125,8 +125,11 @@ class CoverSolver:
         id_rank[np.argsort(ids, kind="stable")] = np.arange(problem.size)
         self.id_rank = id_rank
         columns: list[IntArray] = []
+        # One sort groups the robots by class, however many classes there are.
+        grouped = robots[np.argsort(member, kind="stable")]
+        bounds = np.searchsorted(np.sort(member), np.arange(len(brings) + 1))
         for m in range(len(brings)):
-            mine = robots[member == m]
+            mine = grouped[bounds[m] : bounds[m + 1]]
             mine = _skyline(mine, problem.time, problem.cost, id_rank, int(self.cap[m]))
             columns.append(mine[np.lexsort((id_rank[mine], problem.cost[mine]))])
         self.classes = len(columns)

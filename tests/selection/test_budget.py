@@ -158,3 +158,30 @@ def test_a_bad_budget_is_invalid_input(budget: object) -> None:
     robots, task = robots_and_task()
     with pytest.raises(InvalidInput, match="budget_s"):
         select(robots, task, budget_s=budget)  # type: ignore[arg-type]
+
+
+def test_counts_whose_product_is_astronomical_stay_bounded() -> None:
+    # 1,000 + 1,000 + 500 + 500: the old coverage table would have had about
+    # 2.5e11 cells per size; the class-count search holds nothing of the kind.
+    rng = np.random.default_rng(5)
+    robots = 6000
+    uses = np.zeros((robots, 4), dtype=bool)
+    uses[np.arange(robots), rng.integers(0, 2, robots)] = True
+    uses[:, 2:] = rng.random((robots, 2)) < 0.4
+    problem = CoalitionProblem(
+        ids=tuple(f"r-{i:05d}" for i in range(robots)),
+        time=rng.uniform(10, 1000, robots),
+        cost=rng.uniform(1, 20, robots),
+        uses=uses,
+        capabilities=("a", "b", "c", "d"),
+        need=np.array([1000, 1000, 500, 500]),
+        max_robots=100_000,
+        max_cost=1e9,
+        max_time=1e9,
+    )
+    outcome = exact_search(problem, deadline=Deadline.after(0.5))
+    assert outcome.front
+    for coalition in outcome.front[:5]:
+        row = np.isin(np.array(problem.ids), coalition.robots)[None, :]
+        assert problem.feasible(row)[0]
+    assert outcome.complete or outcome.bound is not None

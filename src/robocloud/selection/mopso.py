@@ -230,10 +230,11 @@ class _Swarm:
         # bring), each class cheapest first: what ``_polish`` picks from.
         _, member = np.unique(problem.uses, axis=0, return_inverse=True)
         member = member.reshape(-1)
-        self.classes = [
-            np.flatnonzero(member == c)[np.argsort(problem.cost[member == c], kind="stable")]
-            for c in range(int(member.max(initial=-1)) + 1)
-        ]
+        self.class_order = np.lexsort((problem.cost, member))
+        self.class_of = member[self.class_order]
+        self.class_starts = np.flatnonzero(np.r_[True, self.class_of[1:] != self.class_of[:-1]])
+        self.class_of = np.cumsum(np.r_[False, self.class_of[1:] != self.class_of[:-1]])
+        self.ordered_time = problem.time[self.class_order]
         self.rep = Repository(problem.size, settings.repository_size, settings.grid_divisions)
         # Steps 2-4: positions, each particle's preference, velocities.
         self.position, self.preference = self._initial_swarm()
@@ -362,24 +363,30 @@ class _Swarm:
         tightened particle steps along the time-cost trade-off instead (T
         down, C up), as the exact optimizer's sweep does.
         """
-        p = self.problem
-        time, _, _ = p.evaluate(position)
-        limit = time + np.maximum(1e-6, 1e-9 * np.abs(time))
-        limit[tighten] = time[tighten] - np.maximum(1e-6, 1e-9 * np.abs(time[tighten]))
+        time, _, _ = self.problem.evaluate(position)
+        margin = np.maximum(1e-6, 1e-9 * np.abs(time))
+        loose = time + margin
+        order, starts, of = self.class_order, self.class_starts, self.class_of
+        held = np.add.reduceat(position[:, order].astype(np.int64), starts, axis=1)
+        wanted = held[:, of]
+
+        def pick(limit: FloatArray) -> tuple[BoolArray, BoolArray]:
+            # All classes at once: a running count restarted at each class's start.
+            eligible = self.ordered_time[None, :] <= limit[:, None]
+            running = np.cumsum(eligible, axis=1)
+            before = np.concatenate((np.zeros((len(limit), 1), dtype=np.int64), running), axis=1)
+            rank = running - before[:, starts][:, of]
+            enough = (np.add.reduceat(eligible, starts, axis=1) >= held).all(axis=1)
+            return eligible & (rank <= wanted), enough
+
+        chosen, enough = pick(np.where(tighten, time - margin, loose))
+        short = ~enough
+        if short.any():
+            # Too few faster robots: those particles are polished without tightening.
+            chosen[short] = pick(loose)[0][short]
         polished = np.zeros_like(position)
-        enough = np.ones(len(position), dtype=bool)
-        for members in self.classes:
-            counts = position[:, members].sum(axis=1)
-            eligible = p.time[members][None, :] <= limit[:, None]
-            rank = np.cumsum(eligible, axis=1)
-            polished[:, members] = eligible & (rank <= counts[:, None])
-            enough &= rank[:, -1] >= counts
-        keep = enough | ~tighten
-        if not keep.all():
-            # Too few faster robots: the particle is polished without tightening.
-            loose = self._polish(position[~keep], np.zeros(int((~keep).sum()), dtype=bool))
-            polished[~keep] = loose
-        return np.asarray(polished)
+        polished[:, order] = chosen
+        return polished
 
     def _repair(
         self,

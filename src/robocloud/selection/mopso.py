@@ -377,7 +377,7 @@ class _Swarm:
             before = np.concatenate((np.zeros((len(limit), 1), dtype=np.int64), running), axis=1)
             rank = running - before[:, starts][:, of]
             enough = (np.add.reduceat(eligible, starts, axis=1) >= held).all(axis=1)
-            return eligible & (rank <= wanted), enough
+            return eligible & (rank <= wanted), np.asarray(enough)
 
         chosen, enough = pick(np.where(tighten, time - margin, loose))
         short = ~enough

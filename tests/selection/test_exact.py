@@ -5,6 +5,7 @@ from instances import random_problem
 
 from robocloud.domain import Robot, Task
 from robocloud.selection.choice import choose
+from robocloud.selection import covering
 from robocloud.selection.covering import CoverSolver
 from robocloud.selection.exact import cheapest_cover, exact_front, prune
 from robocloud.selection.filtering import filter_robots
@@ -130,3 +131,35 @@ def test_every_tie_is_found(seed: int) -> None:
     assert result.status == "optimal" and result.cost == pytest.approx(best)
     expected = {x for x, c in costs.items() if c <= best + 1e-6}
     assert {tuple(int(v) for v in x) for x in result.ties} == expected
+
+
+@pytest.fixture(params=["grid", "branch-and-bound"])
+def search_path(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> str:
+    """Small searches list every count vector at once; force the branch and
+    bound too, so brute force checks both."""
+    if request.param == "branch-and-bound":
+        monkeypatch.setattr(covering, "GRID_LIMIT", 0)
+    return str(request.param)
+
+
+@pytest.mark.parametrize("seed", range(150))
+def test_both_search_paths_equal_brute_force(seed: int, search_path: str) -> None:
+    problem = random_problem(np.random.default_rng(5000 + seed))
+    assert exact_front(problem) == brute_force_front(problem)
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_both_search_paths_in_both_modes(seed: int, search_path: str) -> None:
+    for execution in ("parallel", "sequential"):
+        for tight in (True, False):
+            robots, task = fleet_and_task(np.random.default_rng(700 + seed), execution, tight)
+            problem = CoalitionProblem.build(filter_robots(robots, task), task)
+            assert exact_front(problem) == brute_force_front(problem)
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_every_tie_is_found_by_branch_and_bound(
+    seed: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(covering, "GRID_LIMIT", 0)
+    test_every_tie_is_found(seed)

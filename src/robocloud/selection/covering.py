@@ -56,6 +56,9 @@ from robocloud.selection.problem import BoolArray, CoalitionProblem, FloatArray,
 
 # DFS steps an enumeration may take before its node branches instead.
 ENUMERATION_LIMIT = 4_000
+# A search whose whole box holds at most this many count vectors lists them
+# all at once instead (no LP): the thesis's 5-robot task is such a search.
+GRID_LIMIT = 20_000
 # A class total this close to an integer is that integer.
 INTEGRAL = 1e-6
 
@@ -145,7 +148,7 @@ class CoverSolver:
         self._costs: list[FloatArray] = []
         self._prefix: list[FloatArray] = []
         self._refresh(range(self.classes))
-        self.highs = self._model()
+        self._highs: highspy._core._Highs | None = None
 
     # --- the robots allowed ------------------------------------------------
 
@@ -157,15 +160,29 @@ class CoverSolver:
         t = self.column_time
         self._set_allowed(self.allowed & (t < limit - np.maximum(ABS_TOL, REL_TOL * limit)))
 
+    @property
+    def highs(self) -> highspy._core._Highs:
+        """The LP, built when a search first needs it (small ones never do)."""
+        if self._highs is None:
+            self._highs = self._model()
+            closed = np.flatnonzero(~self.allowed)
+            if closed.size:
+                self._highs.changeColsBounds(
+                    int(closed.size), closed.astype(np.int32), np.zeros(closed.size),
+                    np.zeros(closed.size),
+                )
+        return self._highs
+
     def _set_allowed(self, allowed: BoolArray) -> None:
         changed = np.flatnonzero(allowed != self.allowed)
         if changed.size == 0:
             return
         self.allowed = allowed
-        upper = allowed[changed].astype(np.float64)
-        self.highs.changeColsBounds(
-            int(changed.size), changed.astype(np.int32), np.zeros(changed.size), upper
-        )
+        if self._highs is not None:
+            upper = allowed[changed].astype(np.float64)
+            self._highs.changeColsBounds(
+                int(changed.size), changed.astype(np.int32), np.zeros(changed.size), upper
+            )
         self._refresh(np.unique(self.column_class[changed]).tolist())
 
     def _refresh(self, classes: range | list[int]) -> None:
@@ -362,6 +379,8 @@ class _Search:
         lo0 = np.zeros(s.classes, dtype=np.int64)
         if s.classes == 0 or ((hi0 @ s.brings.astype(np.int64)) < s.need).any():
             return CoverResult("infeasible", math.inf, (), math.inf, 0)
+        if int(np.prod((hi0 + 1).astype(float))) <= GRID_LIMIT:
+            return self._grid(hi0)
         stack: list[tuple[IntArray, IntArray, float]] = [(lo0, hi0, -math.inf)]
         try:
             while stack:
@@ -381,6 +400,25 @@ class _Search:
         if not math.isfinite(self.best):
             return CoverResult("infeasible", math.inf, (), math.inf, self.nodes)
         return CoverResult("optimal", self.best, self._ties(), self.best, self.nodes)
+
+    def _grid(self, hi: IntArray) -> CoverResult:
+        """Every count vector of the box at once: feasible ones, their costs, the ties."""
+        s = self.s
+        counts = np.indices(tuple(int(h) + 1 for h in hi)).reshape(s.classes, -1).T
+        cover = counts @ s.brings.astype(np.int64)
+        counts = counts[(cover >= s.need).all(axis=1) & (counts.sum(axis=1) <= self.n)]
+        if counts.size == 0:
+            return CoverResult("infeasible", math.inf, (), math.inf, 0)
+        cost = np.zeros(len(counts))
+        for m in range(s.classes):
+            cost += s._prefix[m][counts[:, m]]
+        best = float(cost.min())
+        ties = counts[cost <= best + tolerance(best)]
+        ordered = sorted(tuple(int(v) for v in x) for x in ties)
+        found = tuple(np.array(x, dtype=np.int64) for x in ordered)
+        # The exact cost of the best, summed as ``cost_of`` sums it.
+        exact = min(s.cost_of(x) for x in found)
+        return CoverResult("optimal", exact, found, exact, 0)
 
     def _ties(self) -> tuple[IntArray, ...]:
         if not math.isfinite(self.best):

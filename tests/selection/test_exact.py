@@ -4,8 +4,8 @@ from brute_force import brute_force_front
 from instances import random_problem
 
 from robocloud.domain import Robot, Task
-from robocloud.selection.choice import choose
 from robocloud.selection import covering
+from robocloud.selection.choice import choose
 from robocloud.selection.covering import CoverSolver
 from robocloud.selection.exact import cheapest_cover, exact_front, prune
 from robocloud.selection.filtering import filter_robots

@@ -142,7 +142,7 @@ def search_path(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch)
     return str(request.param)
 
 
-@pytest.mark.parametrize("seed", range(150))
+@pytest.mark.parametrize("seed", range(80))
 def test_both_search_paths_equal_brute_force(seed: int, search_path: str) -> None:
     problem = random_problem(np.random.default_rng(5000 + seed))
     assert exact_front(problem) == brute_force_front(problem)

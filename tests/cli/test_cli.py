@@ -15,7 +15,8 @@ import robocloud
 from robocloud.cli.main import main
 from robocloud.sim.scenario import wildfire_scenario
 
-OUTPUT_KEYS = {"candidates", "ranking", "pareto", "chosen", "reason", "optimizer", "elapsed_ms"}
+OUTPUT_KEYS = {"candidates", "ranking", "pareto", "chosen", "reason", "optimizer", "elapsed_ms",
+               "complete", "bound", "note"}
 
 
 def run(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]:

@@ -9,18 +9,21 @@ request and its history come from one snapshot.
 
 No robot is ever reserved twice because ``reservations.robot_id`` is the
 primary key; when two PostgreSQL transactions race for a robot the loser gets a
-unique violation, and ``reserve`` runs again and reports the robot as taken.
+unique violation, and ``reserve`` (or ``lend``) runs again and reports the
+robot as taken. Loans hold their robots in the same table, so a robot lent to
+another cloud is never reserved by a request of this one, nor the reverse.
 """
 
 from __future__ import annotations
 
 import builtins
+import logging
 import random
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import AbstractContextManager, contextmanager, nullcontext
-from datetime import datetime
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -35,6 +38,7 @@ from sqlalchemy import (
     event,
     func,
     insert,
+    inspect,
     or_,
     select,
     text,
@@ -52,11 +56,25 @@ from sqlalchemy.exc import (
 from robocloud.domain import ACTIVE_STATES, FINAL_STATES
 from robocloud.errors import InvalidInput
 from robocloud.storage import rules
-from robocloud.storage.records import RequestRecord, StateChange, new_request_id
-from robocloud.storage.schema import metadata, request_history, requests, reservations
+from robocloud.storage.records import (
+    Loan,
+    RequestRecord,
+    StateChange,
+    new_loan_id,
+    new_request_id,
+)
+from robocloud.storage.schema import (
+    loan_history,
+    loans,
+    metadata,
+    request_history,
+    requests,
+    reservations,
+)
 from robocloud.storage.store import StoreUnavailable
 
 T = TypeVar("T")
+log = logging.getLogger(__name__)
 
 URL_HINT = "use sqlite:///FILE or postgresql+psycopg://USER@HOST:PORT/DATABASE"
 BUSY_TIMEOUT_S = 15.0  # how long a SQLite writer waits for another process's write
@@ -347,15 +365,258 @@ class SqlRequestStore:
         def work(conn: Connection) -> dict[str, str]:
             now = self._clock()
             query = (
-                select(reservations.c.robot_id, reservations.c.request_id)
-                .where(or_(reservations.c.expires_at.is_(None), reservations.c.expires_at >= now))
+                select(reservations.c.robot_id, reservations.c.request_id, reservations.c.loan_id)
+                .where(_unexpired(reservations.c.expires_at, now))
                 .order_by(reservations.c.robot_id)
             )
             if request_id is not None:
                 query = query.where(reservations.c.request_id == request_id)
-            return {row.robot_id: row.request_id for row in conn.execute(query)}
+            return {row.robot_id: row.request_id or row.loan_id for row in conn.execute(query)}
 
         return self._run(work, write=False)
+
+    # loans
+
+    def lend(
+        self,
+        origin: str,
+        request_id: str,
+        robot_ids: Sequence[str],
+        lease_seconds: float,
+    ) -> builtins.list[str]:
+        rules.check_name(origin, "origin", "origin")
+        rules.check_name(request_id, "request_id", "request_id")
+        robots = rules.check_robots(robot_ids)
+        rules.check_lease(lease_seconds, self._clock())  # check it before any work
+
+        def work(conn: Connection) -> builtins.list[str]:
+            now = self._clock()
+            expires_at = rules.check_lease(lease_seconds, now)
+            self._drop_lapsed(conn, robots, now)
+            mine = self._lent(conn, origin, request_id, robots)
+            held = {
+                row.robot_id: row.loan_id
+                for row in conn.execute(
+                    select(reservations.c.robot_id, reservations.c.loan_id).where(
+                        reservations.c.robot_id.in_(robots)
+                    )
+                )
+            }
+            taken = [
+                r
+                for r in robots
+                if r in held and (held[r] is None or r not in mine or held[r] != mine[r].id)
+            ]
+            if taken:
+                return taken
+            new = sorted(r for r in robots if r not in held)  # one order: no deadlocks
+            if new:
+                ids = {r: new_loan_id() for r in new}
+                conn.execute(
+                    insert(loans).values(
+                        [
+                            {
+                                "id": ids[r],
+                                "robot_id": r,
+                                "origin": origin,
+                                "request_id": request_id,
+                                "state": "leased",
+                                "expires_at": expires_at,
+                                "tell_origin": False,
+                                "created_at": now,
+                                "updated_at": now,
+                            }
+                            for r in new
+                        ]
+                    )
+                )
+                self._loan_history(
+                    conn, [(ids[r], "leased", f"lent to {origin}") for r in new], now, first=True
+                )
+                conn.execute(
+                    insert(reservations).values(
+                        [
+                            {
+                                "robot_id": r,
+                                "loan_id": ids[r],
+                                "expires_at": expires_at,
+                                "created_at": now,
+                            }
+                            for r in new
+                        ]
+                    )
+                )
+            longer = [
+                mine[r].id
+                for r in robots
+                if r in mine and mine[r].expires_at is not None and mine[r].expires_at < expires_at
+            ]
+            if longer:
+                self._set_lease(conn, longer, expires_at, now)
+            return []
+
+        return self._run(work, write=True, retry_integrity=True)
+
+    def confirm_loans(
+        self, origin: str, request_id: str, robot_ids: Sequence[str]
+    ) -> builtins.list[str]:
+        robots = rules.check_robots(robot_ids)
+
+        def work(conn: Connection) -> builtins.list[str]:
+            now = self._clock()
+            self._drop_lapsed(conn, robots, now)
+            mine = self._lent(conn, origin, request_id, robots)
+            lost = [r for r in robots if r not in mine]
+            if lost:
+                return lost
+            leased = [row.id for row in mine.values() if row.state == "leased"]
+            if leased:
+                conn.execute(
+                    update(loans)
+                    .where(loans.c.id.in_(leased))
+                    .values(state="firm", expires_at=None, updated_at=now)
+                )
+                conn.execute(
+                    update(reservations)
+                    .where(reservations.c.loan_id.in_(leased))
+                    .values(expires_at=None)
+                )
+                self._loan_history(conn, [(i, "firm", "confirmed") for i in leased], now)
+            return []
+
+        return self._run(work, write=True)
+
+    def keep_loan(self, origin: str, request_id: str, robot_id: str) -> Loan | None:
+        robots = rules.check_robots([robot_id])
+
+        def work(conn: Connection) -> Loan | None:
+            now = self._clock()
+            self._drop_lapsed(conn, robots, now)
+            row = self._lent(conn, origin, request_id, robots).get(robot_id)
+            if row is None:
+                return None
+            if row.expires_at is not None:
+                self._set_lease(conn, [row.id], None, now, "dispatched: the lease is kept")
+            return self._loans_by_id(conn, [row.id], history=True)[0]
+
+        return self._run(work, write=True)
+
+    def end_loans(
+        self,
+        origin: str,
+        request_id: str,
+        robot_ids: Sequence[str] | None,
+        why: str,
+        *,
+        tell_origin: bool = False,
+    ) -> builtins.list[Loan]:
+        robots = None if robot_ids is None else rules.check_robots(robot_ids)
+        rules.check_why(why)
+
+        def work(conn: Connection) -> builtins.list[Loan]:
+            now = self._clock()
+            query = (
+                select(loans.c.id)
+                .where(
+                    loans.c.origin == origin,
+                    loans.c.request_id == request_id,
+                    loans.c.state != "released",
+                )
+                .order_by(loans.c.id)
+                .with_for_update()
+            )
+            if robots is not None:
+                query = query.where(loans.c.robot_id.in_(robots))
+            ids = [row.id for row in conn.execute(query)]
+            self._end_loans(conn, ids, now, why, tell_origin)
+            return self._loans_by_id(conn, ids, history=False)
+
+        return self._run(work, write=True)
+
+    def lapse_loans(self) -> builtins.list[Loan]:
+        def work(conn: Connection) -> builtins.list[Loan]:
+            now = self._clock()
+            ids = self._drop_lapsed(conn, None, now)
+            return self._loans_by_id(conn, ids, history=False)
+
+        return self._run(work, write=True)
+
+    def loan_of(self, robot_id: str) -> Loan | None:
+        def work(conn: Connection) -> Loan | None:
+            loan_id = conn.execute(
+                select(reservations.c.loan_id).where(
+                    reservations.c.robot_id == robot_id,
+                    reservations.c.loan_id.is_not(None),
+                    _unexpired(reservations.c.expires_at, self._clock()),
+                )
+            ).scalar_one_or_none()
+            if loan_id is None:
+                return None
+            return self._loans_by_id(conn, [loan_id], history=True)[0]
+
+        return self._run(work, write=False)
+
+    def loans(
+        self, origin: str | None = None, request_id: str | None = None
+    ) -> builtins.list[Loan]:
+        def work(conn: Connection) -> builtins.list[Loan]:
+            query = select(loans).where(
+                loans.c.state != "released", _unexpired(loans.c.expires_at, self._clock())
+            )
+            if origin is not None:
+                query = query.where(loans.c.origin == origin)
+            if request_id is not None:
+                query = query.where(loans.c.request_id == request_id)
+            rows = conn.execute(
+                query.order_by(loans.c.created_at, loans.c.robot_id, loans.c.id)
+            ).all()
+            return [_loan(row) for row in rows]
+
+        return self._run(work, write=False)
+
+    def untold_loans(self, origin: str) -> builtins.list[Loan]:
+        def work(conn: Connection) -> builtins.list[Loan]:
+            rows = conn.execute(
+                select(loans)
+                .where(loans.c.origin == origin, loans.c.tell_origin.is_(True))
+                .order_by(loans.c.updated_at, loans.c.id)
+            ).all()
+            return [_loan(row) for row in rows]
+
+        return self._run(work, write=False)
+
+    def told(self, origin: str, loan_ids: Sequence[str]) -> builtins.list[Loan]:
+        ids = rules.check_names(loan_ids, "a loan id", "loan_ids")
+
+        def work(conn: Connection) -> builtins.list[Loan]:
+            now = self._clock()
+            marked = [
+                row.id
+                for row in conn.execute(
+                    select(loans.c.id)
+                    .where(
+                        loans.c.origin == origin,
+                        loans.c.id.in_(ids),
+                        loans.c.tell_origin.is_(True),
+                    )
+                    .order_by(loans.c.id)
+                    .with_for_update()
+                )
+            ]
+            if marked:
+                conn.execute(
+                    update(loans)
+                    .where(loans.c.id.in_(marked))
+                    .values(tell_origin=False, updated_at=now)
+                )
+                self._loan_history(
+                    conn,
+                    [(i, "released", f"{origin} was told that the loan ended") for i in marked],
+                    now,
+                )
+            return self._loans_by_id(conn, marked, history=False)
+
+        return self._run(work, write=True)
 
     def close(self) -> None:
         self._engine.dispose()
@@ -467,7 +728,215 @@ class SqlRequestStore:
         if not self._sqlite:
             # Two processes opening a new database must not both create the tables.
             conn.execute(text("SELECT pg_advisory_xact_lock(:key)"), {"key": _SCHEMA_LOCK})
+        found = inspect(conn)
+        if found.has_table("reservations") and "loan_id" not in {
+            column["name"] for column in found.get_columns("reservations")
+        }:
+            self._migrate_to_loans(conn)
         metadata.create_all(conn)
+
+    def _migrate_to_loans(self, conn: Connection) -> None:
+        """Bring a store made before loans up to date, in the schema transaction.
+
+        Such a store kept another cloud's hold on a robot as a "shadow" request
+        (application ``cloud:<origin>``). The reservations table is made anew
+        (a holder is now a request or a loan) with the requests' holds; the
+        active shadows end, so their robots are free: the origins' requests
+        lose them as robots whose loans ended (nothing tells those origins,
+        which ran the old protocol).
+        """
+        kept = [
+            dict(row._mapping)
+            for row in conn.execute(
+                text("SELECT robot_id, request_id, expires_at, created_at FROM reservations")
+            )
+        ]
+        conn.execute(text("DROP TABLE reservations"))
+        metadata.create_all(conn)
+        now = self._clock()
+        shadows = (
+            conn.execute(
+                select(requests.c.id).where(
+                    requests.c.application.like("cloud:%"),
+                    requests.c.state.in_(sorted(ACTIVE_STATES)),
+                )
+            )
+            .scalars()
+            .all()
+        )
+        for shadow in shadows:
+            conn.execute(
+                update(requests)
+                .where(requests.c.id == shadow)
+                .values(state="canceled", updated_at=now)
+            )
+            self._append(
+                conn, shadow, "state", "canceled", "shadow requests gave way to loans", now
+            )
+        rows = [
+            {
+                **row,
+                "expires_at": _aware(row["expires_at"]),
+                "created_at": _aware(row["created_at"]),
+            }
+            for row in kept
+            if row["request_id"] not in set(shadows)
+        ]
+        if rows:
+            conn.execute(insert(reservations).values(rows))
+        log.warning(
+            "store %s: moved to loans (%d reservations kept, %d shadow requests ended)",
+            self.url,
+            len(rows),
+            len(shadows),
+        )
+
+    # loans' rows
+
+    def _drop_lapsed(
+        self, conn: Connection, robots: builtins.list[str] | None, now: datetime
+    ) -> builtins.list[str]:
+        """Free the robots whose lease lapsed (of ``robots``, None: all); end lapsed loans.
+
+        A lapsed lease is free, whoever held it. Returns the ids of the loans ended.
+        """
+        lapsed = select(reservations.c.robot_id, reservations.c.loan_id).where(
+            reservations.c.expires_at < now
+        )
+        if robots is not None:
+            lapsed = lapsed.where(reservations.c.robot_id.in_(robots))
+        rows = conn.execute(lapsed.order_by(reservations.c.robot_id)).all()
+        if not rows:
+            return []
+        conn.execute(
+            delete(reservations).where(
+                reservations.c.robot_id.in_([row.robot_id for row in rows]),
+                reservations.c.expires_at < now,
+            )
+        )
+        ended = [row.loan_id for row in rows if row.loan_id is not None]
+        self._end_loans(conn, ended, now, "the lease lapsed", False)
+        return ended
+
+    def _lent(
+        self, conn: Connection, origin: str, request_id: str, robots: builtins.list[str]
+    ) -> dict[str, Any]:
+        """The loans of ``robots`` to the origin request that are not released, locked."""
+        rows = conn.execute(
+            select(loans.c.id, loans.c.robot_id, loans.c.state, loans.c.expires_at)
+            .where(
+                loans.c.origin == origin,
+                loans.c.request_id == request_id,
+                loans.c.robot_id.in_(robots),
+                loans.c.state != "released",
+            )
+            .order_by(loans.c.id)
+            .with_for_update()
+        ).all()
+        return {row.robot_id: row for row in rows}
+
+    def _set_lease(
+        self,
+        conn: Connection,
+        ids: builtins.list[str],
+        expires_at: datetime | None,
+        now: datetime,
+        detail: str | None = None,
+    ) -> None:
+        conn.execute(
+            update(loans).where(loans.c.id.in_(ids)).values(expires_at=expires_at, updated_at=now)
+        )
+        conn.execute(
+            update(reservations)
+            .where(reservations.c.loan_id.in_(ids))
+            .values(expires_at=expires_at)
+        )
+        if detail is not None:
+            self._loan_history(conn, [(i, "leased", detail) for i in ids], now)
+
+    def _end_loans(
+        self,
+        conn: Connection,
+        ids: builtins.list[str],
+        now: datetime,
+        why: str,
+        tell_origin: bool,
+    ) -> None:
+        if not ids:
+            return
+        conn.execute(delete(reservations).where(reservations.c.loan_id.in_(ids)))
+        conn.execute(
+            update(loans)
+            .where(loans.c.id.in_(ids))
+            .values(
+                state="released",
+                expires_at=None,
+                reason=why,
+                tell_origin=tell_origin,
+                updated_at=now,
+            )
+        )
+        self._loan_history(conn, [(i, "released", why) for i in ids], now)
+
+    def _loan_history(
+        self,
+        conn: Connection,
+        entries: builtins.list[tuple[str, str, str]],
+        now: datetime,
+        first: bool = False,
+    ) -> None:
+        """Add (loan id, state, detail) lines; the caller holds the loans' rows."""
+        if not entries:
+            return
+        last: dict[str, int] = {}
+        if not first:
+            ids = sorted({loan_id for loan_id, _, _ in entries})
+            last = {
+                row.loan_id: row.seq
+                for row in conn.execute(
+                    select(loan_history.c.loan_id, func.max(loan_history.c.seq).label("seq"))
+                    .where(loan_history.c.loan_id.in_(ids))
+                    .group_by(loan_history.c.loan_id)
+                )
+            }
+        rows = []
+        for loan_id, state, detail in entries:
+            last[loan_id] = last.get(loan_id, 0) + 1
+            rows.append(
+                {
+                    "loan_id": loan_id,
+                    "seq": last[loan_id],
+                    "state": state,
+                    "detail": detail,
+                    "at": now,
+                }
+            )
+        conn.execute(insert(loan_history).values(rows))
+
+    def _loans_by_id(
+        self, conn: Connection, ids: builtins.list[str], history: bool
+    ) -> builtins.list[Loan]:
+        if not ids:
+            return []
+        rows = conn.execute(select(loans).where(loans.c.id.in_(ids)).order_by(loans.c.id)).all()
+        lines: dict[str, builtins.list[StateChange]] = {row.id: [] for row in rows}
+        if history:
+            for line in conn.execute(
+                select(loan_history)
+                .where(loan_history.c.loan_id.in_(ids))
+                .order_by(loan_history.c.loan_id, loan_history.c.seq)
+            ):
+                previous = lines[line.loan_id][-1].state if lines[line.loan_id] else None
+                lines[line.loan_id].append(
+                    StateChange(
+                        line.state,
+                        line.at,
+                        line.detail,
+                        "event" if line.state == previous else "state",
+                    )
+                )
+        by_id = {row.id: _loan(row, tuple(lines[row.id])) for row in rows}
+        return [by_id[i] for i in ids if i in by_id]
 
     # rows
 
@@ -497,12 +966,7 @@ class SqlRequestStore:
         """Reserve ``robots`` for the (locked) request, or return those another holds."""
         now = self._clock()
         expires_at = rules.lease_end(now, lease_seconds)
-        # A lapsed lease is free: delete it, whoever held it.
-        conn.execute(
-            delete(reservations).where(
-                reservations.c.robot_id.in_(robots), reservations.c.expires_at < now
-            )
-        )
+        self._drop_lapsed(conn, robots, now)
         held = {
             row.robot_id: row
             for row in conn.execute(select(reservations).where(reservations.c.robot_id.in_(robots)))
@@ -599,3 +1063,34 @@ class SqlRequestStore:
             )
             for row in rows
         ]
+
+
+def _unexpired(column: Any, now: datetime) -> Any:
+    """A hold or loan that has not lapsed at ``now`` (None: it never lapses)."""
+    return or_(column.is_(None), column >= now)
+
+
+def _loan(row: Row[Any], history: tuple[StateChange, ...] = ()) -> Loan:
+    return Loan(
+        id=row.id,
+        robot=row.robot_id,
+        origin=row.origin,
+        request_id=row.request_id,
+        state=row.state,
+        expires_at=row.expires_at,
+        created_at=row.created_at,
+        updated_at=row.updated_at,
+        reason=row.reason,
+        tell_origin=bool(row.tell_origin),
+        history=history,
+    )
+
+
+def _aware(value: Any) -> datetime | None:
+    """A time read with raw SQL from either database, as an aware UTC datetime."""
+    if value is None:
+        return None
+    if isinstance(value, str):
+        value = datetime.fromisoformat(value)
+    assert isinstance(value, datetime)
+    return value.replace(tzinfo=UTC) if value.tzinfo is None else value.astimezone(UTC)

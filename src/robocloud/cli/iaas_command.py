@@ -76,6 +76,21 @@ def add_iaas_arguments(parser: argparse.ArgumentParser) -> None:
         help="robot time per wall second, as the simulator's --speedup",
     )
     parser.add_argument(
+        "--lease-max",
+        type=float,
+        default=30.0,
+        metavar="SECONDS",
+        help="the longest lease on a robot lent to another cloud until its dispatch (default 30)",
+    )
+    parser.add_argument(
+        "--origin-deadline",
+        type=float,
+        default=60.0,
+        metavar="SECONDS",
+        help="how long a cloud this one lends to may stay unreachable once the robot is idle "
+        "or done, before the loan ends (default 60)",
+    )
+    parser.add_argument(
         "--log-level", default="info", choices=("debug", "info", "warning", "error")
     )
     security.add_arguments(parser, router=True)
@@ -89,6 +104,8 @@ def iaas_command(args: argparse.Namespace) -> int:
 
     if args.offline_after <= 0 or args.time_scale <= 0:
         raise InvalidInput("--offline-after and --time-scale must be positive.")
+    if not 0 < args.lease_max <= 86_400 or not 0 < args.origin_deadline <= 86_400:
+        raise InvalidInput("--lease-max and --origin-deadline must be more than 0 and at most 86400 seconds.")
     keys = parse_api_keys(",".join(args.api_key))
     settings = Settings.from_env(
         args.cloud,
@@ -102,6 +119,8 @@ def iaas_command(args: argparse.Namespace) -> int:
         optimizer=args.optimizer,
         offline_after=args.offline_after,
         time_scale=args.time_scale,
+        lease_max=args.lease_max,
+        origin_deadline=args.origin_deadline,
         overlay_security=security.from_arguments(args),
     )
     if settings.store_url.startswith("sqlite:///"):

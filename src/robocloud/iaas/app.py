@@ -34,7 +34,7 @@ from robocloud.federation.overlay import ZenohOverlay
 from robocloud.federation.view import FederationView
 from robocloud.fleet.link import RobotLink
 from robocloud.iaas.config import Settings
-from robocloud.iaas.home import Home
+from robocloud.iaas.home import Home, reconcile_period
 from robocloud.iaas.models import (
     ErrorBody,
     Health,
@@ -110,6 +110,8 @@ def create_app(
                 the_link,
                 settings.trusted,
                 api=f"http://{settings.host}:{settings.port}",
+                lease_max=settings.lease_max,
+                origin_deadline=settings.origin_deadline,
             )
             overlay = None
             if session is not None and settings.federation:
@@ -121,12 +123,15 @@ def create_app(
             view = FederationView(
                 settings.cloud, the_store, the_link, overlay, settings.gather_timeout
             )
+            home.lenders = view.lenders
             service = RequestService(settings, the_store, view)
             service.home_info = home.info
             home.origin = service
             await service.start()
             stack.push_async_callback(service.stop)
-            reconciling = asyncio.ensure_future(home.reconcile_forever())
+            reconciling = asyncio.ensure_future(
+                home.reconcile_forever(reconcile_period(settings.origin_deadline))
+            )
             stack.callback(reconciling.cancel)
             app.state.service = service
             app.state.overlay = overlay

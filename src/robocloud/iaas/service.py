@@ -661,6 +661,26 @@ class RequestService:
                 record.id, "resumed after a restart of the IaaS; waiting for its robots to report"
             )
 
+    def loan_ended(self, request_id: str, robot: str, home: str, why: str) -> None:
+        """A home ended the loan of ``robot`` on its own while this cloud was away.
+
+        ``robocloud.iaas.home.OriginStatus``; called on a worker thread, maybe
+        twice for one loan. The request's history says so, and a robot still
+        in its coalition is treated as failed (replaced or the request fails).
+        """
+        loop = self._loop
+        if loop is None:
+            return
+
+        async def ended() -> None:
+            with contextlib.suppress(RoboCloudError):
+                await self._event(request_id, f"{home} ended the loan of robot {robot}: {why}")
+            tracking = self._tracking.get(request_id)
+            if tracking is not None and robot in tracking.robots:
+                await self._robot_failed(request_id, robot, f"{home} ended its loan: {why}")
+
+        loop.call_soon_threadsafe(lambda: self._spawn(ended()))
+
 
 def selection_json(result: SelectionResult, assigned: Sequence[Assigned]) -> dict[str, Any]:
     """What the store keeps of a selection (opaque JSON to the store)."""

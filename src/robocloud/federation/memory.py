@@ -7,7 +7,9 @@ see over Zenoh. A command's origin is the calling overlay's cloud: as a
 router with mutual TLS guarantees, a cloud here cannot send as another.
 
 Faults: ``cut(cloud)`` makes a cloud unreachable both ways (as a cloud killed
-or cut off), ``mend(cloud)`` brings it back. Every call is recorded in
+or cut off: gone from the live clouds too), ``mute(cloud)`` leaves it live but
+answering nobody (as a cloud too slow for the timeout), ``mend(cloud)`` undoes
+either. Every call is recorded in
 ``calls`` as ``(sender, receiver, key name)``.
 """
 
@@ -48,6 +50,7 @@ class MemoryNetwork:
         self._desks: dict[str, HomeDesk] = {}
         self._overlays: dict[str, MemoryOverlay] = {}
         self._cut: set[str] = set()
+        self._muted: set[str] = set()
         self._lock = threading.Lock()
         self.calls: list[tuple[str, str, str]] = []
 
@@ -72,9 +75,14 @@ class MemoryNetwork:
         with self._lock:
             self._cut.add(cloud)
 
+    def mute(self, cloud: str) -> None:
+        with self._lock:
+            self._muted.add(cloud)
+
     def mend(self, cloud: str) -> None:
         with self._lock:
             self._cut.discard(cloud)
+            self._muted.discard(cloud)
 
     def live(self) -> list[str]:
         with self._lock:
@@ -86,7 +94,8 @@ class MemoryNetwork:
         """The reply's JSON, or ``Unreachable`` as ``ZenohOverlay`` raises it."""
         with self._lock:
             self.calls.append((sender, receiver, name))
-            desk = None if {sender, receiver} & self._cut else self._desks.get(receiver)
+            away = {sender, receiver} & self._cut or receiver in self._muted
+            desk = None if away else self._desks.get(receiver)
         if desk is None:
             raise Unreachable(f"{receiver} is not reachable on the overlay.")
         payload = message.model_dump_json().encode() if message is not None else b""

@@ -104,6 +104,20 @@ def test_a_lease_lapses_unless_dispatched_and_a_confirm_needs_it_live(
     assert firm is not None and firm.state == "firm"
 
 
+def test_a_refused_dispatch_keeps_nothing(
+    fed: tuple[MemoryNetwork, dict[str, Cloud]], time: FakeTime
+) -> None:
+    _, c = fed
+    a, b = c["cloud-a"], c["cloud-b"]
+    a.overlay.reserve("cloud-b", Reservation(request_id="req-1", robots=["b-0"]))
+    lacking = Assign(request_id="req-1", location=[0.0, 0.0], capabilities=["light"])
+    ack = a.overlay.dispatch("cloud-b", Dispatch(robot="b-0", command=lacking))
+    assert not ack.ok and "light" in (ack.error or "")
+    time.advance(31)  # the lease lapses as if never dispatched
+    assert b.home.lent_for("b-0") is None
+    assert a.overlay.confirm("cloud-b", Reservation(request_id="req-1", robots=["b-0"])).taken
+
+
 def test_dispatch_only_for_a_robot_lent_to_the_senders_request(
     fed: tuple[MemoryNetwork, dict[str, Cloud]], caplog: pytest.LogCaptureFixture
 ) -> None:

@@ -105,7 +105,9 @@ def iaas_command(args: argparse.Namespace) -> int:
     if args.offline_after <= 0 or args.time_scale <= 0:
         raise InvalidInput("--offline-after and --time-scale must be positive.")
     if not 0 < args.lease_max <= 86_400 or not 0 < args.origin_deadline <= 86_400:
-        raise InvalidInput("--lease-max and --origin-deadline must be more than 0 and at most 86400 seconds.")
+        raise InvalidInput(
+            "--lease-max and --origin-deadline must be more than 0 and at most 86400 seconds."
+        )
     keys = parse_api_keys(",".join(args.api_key))
     settings = Settings.from_env(
         args.cloud,

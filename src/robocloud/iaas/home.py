@@ -11,8 +11,9 @@ mutual TLS, the router let only that cloud's certificate send on it), never
 what the payload says. The home enforces the leases:
 
 - a loan starts as a lease the home sets, at most ``lease_max`` seconds
-  whatever the origin asks, and kept (no longer lapsing) from the dispatch
-  the home forwarded for it; only a live lease can be confirmed (firm);
+  whatever the origin asks, and kept (no longer lapsing) once the robot
+  accepted the dispatch the home forwarded; only a live lease can be
+  confirmed (firm);
 - a loan ends when its robot reports the task done or failed, when the
   origin releases or cancels it, when its lease lapses, when the origin says
   its request is over or no longer uses the robot (``reconcile``, every few
@@ -266,13 +267,21 @@ class Home:
         refusal = self._check(origin, "dispatch", [robot])
         if refusal:
             return Ack.refuse(robot, request_id, refusal)
-        kept = self.store.keep_loan(origin, request_id, robot)
-        if kept is None:
+        holder = self._holder(robot)
+        if holder != (origin, request_id) or self.lent_for(robot) is None:
             error = f"robot {robot} is not lent to request {request_id} of {origin}."
             self._refuse(origin, "dispatch", request_id, [robot], error)
             return Ack.refuse(robot, request_id, error)
-        self._remember(kept)
-        return self.link.assign(robot, command)
+        ack = self.link.assign(robot, command)
+        if ack.ok:
+            # The robot works for the origin now: its lease no longer lapses. A
+            # refused robot's lease lapses as any other.
+            kept = self.store.keep_loan(origin, request_id, robot)
+            if kept is None:  # it lapsed or ended meanwhile: stop the robot again
+                self.link.cancel(robot, request_id)
+                return Ack.refuse(robot, request_id, f"the lease on robot {robot} lapsed.")
+            self._remember(kept)
+        return ack
 
     def cancel(self, origin: str, release: Release) -> Done:
         refusal = self._check(origin, "cancel", release.robots or [])
@@ -439,13 +448,13 @@ class Home:
         """Ask each origin about its requests; end the loans it no longer uses, or waited out."""
         now = self._monotonic()
         states = self.link.states()
+        silent = {robot.id for robot in self.link.robots() if robot.status == "offline"}
         by_origin: dict[str, list[Loan]] = defaultdict(list)
-        settled = self._clock().timestamp() - _SETTLING
         for loan in self.store.loans():
-            if _working(states.get(loan.robot), loan.request_id):
+            if loan.robot not in silent and _working(states.get(loan.robot), loan.request_id):
                 self._worked_at[loan.robot] = now
             # Leases not yet dispatched lapse by themselves.
-            if loan.expires_at is None and loan.updated_at.timestamp() < settled:
+            if loan.expires_at is None:
                 by_origin[loan.origin].append(loan)
         for origin in sorted(set(self._away_since) - set(by_origin)):
             self._probe(overlay, origin)
@@ -520,9 +529,12 @@ class Home:
             log.info("%s is back", origin)
 
     def _apply(self, origin: str, loans: list[Loan], statuses: dict[str, RequestStatus]) -> None:
+        """End the loans the origin no longer uses (not the youngest: it may not know them yet)."""
+        settled = self._clock().timestamp() - _SETTLING
         by_request: dict[str, list[str]] = defaultdict(list)
         for loan in loans:
-            by_request[loan.request_id].append(loan.robot)
+            if loan.updated_at.timestamp() < settled:
+                by_request[loan.request_id].append(loan.robot)
         for request_id, robots in by_request.items():
             status = statuses.get(request_id)
             if status is None:

@@ -92,7 +92,9 @@ def clouds(
     out = {}
     for name in names:
         store = (stores or {}).get(name) or MemoryRequestStore(time.utc)
-        link = MemoryRobotLink(name, [robot(name, i, 10.0 * (i + 1)) for i in range(robots)])
+        link = MemoryRobotLink(
+            name, [robot(name, i, 10.0 * (i + 1)) for i in range(robots)], clock=time.mono
+        )
         home = Home(
             name,
             store,

@@ -265,12 +265,19 @@ def test_an_origin_away_past_the_deadline_loses_its_loans_and_learns_it_back(
     b.link.cancel("b-1", rid)  # b-1 stops (its work is over here): idle, still lent
     time.advance(11)
     network.cut("cloud-a")
+
+    def wait(seconds: int) -> None:
+        """Time passes; b-0 keeps reporting its travel, as robots do every second."""
+        for _ in range(seconds):
+            time.advance(1)
+            b.link.step(0)
+
     with caplog.at_level(logging.INFO, logger="robocloud.iaas.home"):
         b.home.reconcile()  # cloud-a does not answer: the clock starts
-        time.advance(59)
+        wait(59)
         b.home.reconcile()
         assert len(b.store.loans()) == 2
-        time.advance(2)
+        wait(2)
         b.home.reconcile()
         # b-1 is idle: its loan ends; b-0 still travels for cloud-a: it stays.
         assert [loan.robot for loan in b.store.loans()] == ["b-0"]
@@ -291,6 +298,33 @@ def test_an_origin_away_past_the_deadline_loses_its_loans_and_learns_it_back(
     assert "cloud-a is back; 1 of its loans ended while it was away (b-1)" in lines
     assert "cloud-a, back, took in that the loan of b-1" in lines
     assert "cloud-b ended the loan of b-1 to request" in lines
+
+
+def test_a_cancel_stops_a_robot_still_working_after_its_loan_ended(
+    fed: tuple[MemoryNetwork, dict[str, Cloud]], time: FakeTime
+) -> None:
+    network, c = fed
+    a, b, cc = c["cloud-a"], c["cloud-b"], c["cloud-c"]
+    lend(a, "req-1", ["b-0"])
+    network.cut("cloud-a")
+    b.link.silence("b-0")  # it works on, unheard
+    time.advance(6)  # silent: offline for its home
+    b.home.reconcile()
+    time.advance(61)
+    b.home.reconcile()
+    assert b.home.lent_for("b-0") is None  # the loan ended; the cancel went unheard
+    network.mend("cloud-a")
+    b.link.recover("b-0")
+    task = b.link.states()["b-0"].task
+    assert task is not None and task.request_id == "req-1"
+    # No loan holds it, and it works for req-1: cloud-a's cancel stops it.
+    assert a.overlay.cancel("cloud-b", Release(request_id="req-1", robots=["b-0"])).ok
+    assert b.link.states()["b-0"].task is None
+    # A robot lent to another origin is never stopped that way.
+    lend(cc, "req-9", ["b-1"])
+    assert a.overlay.cancel("cloud-b", Release(request_id="req-9", robots=["b-1"])).ok is False
+    task = b.link.states()["b-1"].task
+    assert task is not None and task.request_id == "req-9"
 
 
 def test_status_answers_for_many_requests_at_once(

@@ -293,6 +293,7 @@ class Home:
             loan.robot for loan in lent if release.robots is None or loan.robot in release.robots
         ]
         if not robots:
+            self._stop_strays(request_id, release.robots or [])
             return self._nothing_lent(origin, "cancel", release)
         for robot in robots:
             self.link.cancel(robot, request_id)
@@ -361,6 +362,19 @@ class Home:
             )
         else:
             log.info("refused a %s from %s: %s", what, origin, error)
+
+    def _stop_strays(self, request_id: str, robots: Iterable[str]) -> None:
+        """Stop robots that still work for a request although no loan holds them any more.
+
+        A loan the home ended while its robot could not hear the cancel (it was
+        silent) leaves the robot working; the origin's cancel stops it then.
+        Only a robot no loan holds, and only from that request.
+        """
+        states = self.link.states()
+        for robot in robots:
+            if self._holder(robot) is None and _working(states.get(robot), request_id):
+                log.info("stopping %s, which still works for request %s", robot, request_id)
+                self.link.cancel(robot, request_id)
 
     def _nothing_lent(self, origin: str, what: str, release: Release) -> Done:
         """A release or cancel that ended nothing: harmless, unless it aimed at another's loans."""

@@ -221,12 +221,24 @@ def test_cloud_c_can_neither_take_nor_touch_cloud_as_loans(
             f"refused a {what} from cloud-c for request {rid}: {robot} is lent to cloud-a" in line
             for line in refusals
         ), (what, refusals)
-    # cloud-a's work is untouched: the same robot finishes it.
+    # cloud-a's work is untouched: the same robot still works for it, unstopped.
     with a.client() as client:
-        done = follow(client, rid, lambda r: r["state"] in ("completed", "failed"), 90, "done")
-    assert done["state"] == "completed", done
-    assert [x["robot"] for x in done["coalition"]] == [robot]
-    assert not any("failed" in (h["detail"] or "") for h in done["history"]), done["history"]
+        now = client.get(f"/v1/requests/{rid}").json()
+        assert now["state"] == "underway", now
+        assert [x["robot"] for x in now["coalition"]] == [robot]
+        assert not any("failed" in (h["detail"] or "") for h in now["history"]), now["history"]
+        with b.client() as home:
+            lent = {r["id"]: r for r in home.get("/v1/robots").json()}[robot]
+        assert lent["status"] == "busy" and lent["request"] is not None, lent
+        # cloud-a's own cancel reaches it: the robot is cloud-b's again.
+        assert client.post(f"/v1/requests/{rid}/cancel").json()["state"] == "canceled"
+
+    def free() -> bool:
+        with b.client() as home:
+            state = {r["id"]: r for r in home.get("/v1/robots").json()}[robot]
+        return state["request"] is None and state["status"] == "idle"
+
+    wait_until(free, 10, f"{robot} to be free at cloud-b")
 
 
 def test_a_robot_certificate_sends_no_cloud_command(federation: tuple[list[Cloud], Path]) -> None:

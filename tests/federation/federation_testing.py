@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import socket
 import threading
 from collections.abc import Iterable
 from dataclasses import dataclass, field
@@ -13,6 +14,14 @@ from robocloud.federation.view import FederationView
 from robocloud.fleet import MemoryRobotLink
 from robocloud.iaas.home import Home
 from robocloud.storage import MemoryRequestStore, RequestStore
+
+
+def free_endpoint() -> str:
+    """A loopback TCP endpoint on a port free right now."""
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    return f"tcp/127.0.0.1:{port}"
 
 
 class FakeTime:

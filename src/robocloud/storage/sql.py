@@ -412,39 +412,37 @@ class SqlRequestStore:
             new = sorted(r for r in robots if r not in held)  # one order: no deadlocks
             if new:
                 ids = {r: new_loan_id() for r in new}
+                # Plain parameters (one statement, compiled once and cached), not
+                # a multi-row VALUES: loan ids are new, so no race is lost here.
                 conn.execute(
-                    insert(loans).values(
-                        [
-                            {
-                                "id": ids[r],
-                                "robot_id": r,
-                                "origin": origin,
-                                "request_id": request_id,
-                                "state": "leased",
-                                "expires_at": expires_at,
-                                "tell_origin": False,
-                                "created_at": now,
-                                "updated_at": now,
-                            }
-                            for r in new
-                        ]
-                    )
+                    insert(loans),
+                    [
+                        {
+                            "id": ids[r],
+                            "robot_id": r,
+                            "origin": origin,
+                            "request_id": request_id,
+                            "state": "leased",
+                            "expires_at": expires_at,
+                            "tell_origin": False,
+                            "created_at": now,
+                            "updated_at": now,
+                        }
+                        for r in new
+                    ],
                 )
                 self._loan_history(
                     conn, [(ids[r], "leased", f"lent to {origin}") for r in new], now, first=True
                 )
+                holds = [
+                    {"robot_id": r, "loan_id": ids[r], "expires_at": expires_at, "created_at": now}
+                    for r in new
+                ]
+                # The robots' race is decided here (the primary key): one multi-row
+                # INSERT for several, as _hold does; one robot needs no more.
                 conn.execute(
-                    insert(reservations).values(
-                        [
-                            {
-                                "robot_id": r,
-                                "loan_id": ids[r],
-                                "expires_at": expires_at,
-                                "created_at": now,
-                            }
-                            for r in new
-                        ]
-                    )
+                    insert(reservations).values(holds) if len(holds) > 1 else insert(reservations),
+                    holds[0] if len(holds) == 1 else None,
                 )
             longer = [
                 mine[r].id
@@ -911,7 +909,7 @@ class SqlRequestStore:
                     "at": now,
                 }
             )
-        conn.execute(insert(loan_history).values(rows))
+        conn.execute(insert(loan_history), rows)
 
     def _loans_by_id(
         self, conn: Connection, ids: builtins.list[str], history: bool

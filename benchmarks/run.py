@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks import selection, service
+from benchmarks import federation, selection, service
 from benchmarks.report import SectionReport, render_markdown, render_text, write_csv
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -34,6 +34,7 @@ class Section:
 SECTIONS: list[Section] = [
     Section("selection", selection.run),
     Section("service", service.run),
+    Section("federation", federation.run),
 ]
 
 

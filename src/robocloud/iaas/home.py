@@ -71,6 +71,10 @@ ORIGIN_DEADLINE = 60.0  # seconds an origin may stay away once its robot is idle
 # A loan this young is not judged by what its origin says: the origin may not
 # have recorded the robot yet (it confirms, then starts following it).
 _SETTLING = 10.0
+# Requests asked about in one status query: the origin reads each from its
+# store, and must answer well within the overlay's timeout, or it would pass
+# for unreachable.
+_STATUS_BATCH = 100
 
 
 def reconcile_period(origin_deadline: float) -> float:
@@ -476,9 +480,9 @@ class Home:
             request_ids = sorted({loan.request_id for loan in loans})
             try:
                 statuses: dict[str, RequestStatus] = {}
-                for start in range(0, len(request_ids), MAX_ITEMS):
+                for start in range(0, len(request_ids), _STATUS_BATCH):
                     query = StatusQuery(
-                        home=self.cloud, request_ids=request_ids[start : start + MAX_ITEMS]
+                        home=self.cloud, request_ids=request_ids[start : start + _STATUS_BATCH]
                     )
                     for status in overlay.status(origin, query).requests:
                         statuses[status.request_id] = status

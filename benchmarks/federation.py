@@ -1,0 +1,208 @@
+"""Across clouds: POST-to-dispatched with every robot at another cloud, and loan lookups.
+
+- Cross-cloud POST-to-dispatched: real processes on loopback, as
+  ``benchmarks/service.py`` runs them. The reference is one cloud with 300
+  robots; the cross-cloud run is cloud-a with no robot of its own and cloud-b
+  with the same 300 robots, so every coalition is lent by cloud-b: gathered
+  over the overlay, leased, dispatched and confirmed at its home. Same task,
+  same requests, same process. Goal: within 1.2x of one cloud.
+- Loan lookups at a home (in process, a SQLite file store, as an IaaS keeps
+  it): with 10, 100 and 1,000 loans held, the median time of finding a
+  robot's loan in the store (``loan_of``), of ``Home.lent_for`` (what the
+  service asks on robot state messages), of an origin request's loans, and
+  of a release through the home. Goal: 1,000 loans within 1.5x of 10
+  (indexed lookups, not a scan of the newest ones).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import random
+import secrets
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import httpx
+
+from benchmarks.report import Column, Goal, SectionReport, Table
+from benchmarks.service import _median, _p99, _port, _wait, post_to_dispatched
+
+ROBOTS = 300
+
+
+@contextlib.contextmanager
+def federation(workdir: Path, counts: dict[str, int]) -> Iterator[tuple[str, str]]:
+    """Clouds joined in a chain (each names the previous as its peer); yields (cloud-a's URL, key).
+
+    A cloud with 0 robots runs no simulator.
+    """
+    key = secrets.token_urlsafe(12)
+    env = {**os.environ, "ROBOCLOUD_API_KEYS": f"bench={key}"}
+    python = [sys.executable, "-m", "robocloud.cli.main"]
+    processes: list[subprocess.Popen[bytes]] = []
+    urls: list[str] = []
+    endpoints: list[str] = []
+    headers = {"Authorization": f"Bearer {key}"}
+    try:
+        for i, (name, robots) in enumerate(counts.items()):
+            http, zenoh_port = _port(), _port()
+            endpoint = f"tcp/127.0.0.1:{zenoh_port}"
+            log = open(workdir / f"{name}-iaas.log", "ab")  # noqa: SIM115
+            processes.append(subprocess.Popen(
+                [*python, "iaas", "--cloud", name, "--listen", f"127.0.0.1:{http}",
+                 "--zenoh", endpoint, "--store", f"sqlite:///{workdir / f'{name}.db'}",
+                 "--log-level", "warning", *[a for e in endpoints for a in ("--peer", e)]],
+                stdout=log, stderr=subprocess.STDOUT, env=env))
+            url = f"http://127.0.0.1:{http}"
+            urls.append(url)
+            endpoints.append(endpoint)
+            _wait(lambda u=url: httpx.get(f"{u}/healthz", timeout=1).status_code == 200, 30)
+            if robots:
+                log = open(workdir / f"{name}-sim.log", "ab")  # noqa: SIM115
+                processes.append(subprocess.Popen(
+                    [*python, "sim", "--cloud", name, "--robots", str(robots), "--connect",
+                     endpoint, "--seed", str(i), "--no-churn"],
+                    stdout=log, stderr=subprocess.STDOUT))
+        total = sum(counts.values())
+        _wait(lambda: len(httpx.get(f"{urls[0]}/v1/robots", headers=headers,
+                                    params={"scope": "federation"}, timeout=5).json()) >= total,
+              60)
+        yield urls[0], key
+    finally:
+        for p in processes:
+            p.terminate()
+        for p in processes:
+            try:
+                p.wait(10)
+            except subprocess.TimeoutExpired:
+                p.kill()
+
+
+def cross_cloud(workdir: Path, posts: int) -> dict[str, dict[str, Any]]:
+    """POST-to-dispatched on one cloud, then with every robot at another cloud."""
+    out = {}
+    with federation(workdir, {"cloud-a": ROBOTS}) as (url, key):
+        out["one"] = post_to_dispatched(url, key, posts)
+    with federation(workdir, {"cloud-a": 0, "cloud-b": ROBOTS}) as (url, key):
+        out["cross"] = post_to_dispatched(url, key, posts)
+    return out
+
+
+def loan_lookups(sizes: tuple[int, ...], reps: int) -> list[dict[str, Any]]:
+    """Median µs of the loan lookups with ``size`` loans held, for each size."""
+    rng = random.Random(0)
+    return [_lookups_at(size, reps, rng) for size in sizes]
+
+
+def _lookups_at(size: int, reps: int, rng: random.Random) -> dict[str, Any]:
+    from robocloud.domain import Robot
+    from robocloud.federation.messages import Release, Reservation
+    from robocloud.fleet import MemoryRobotLink
+    from robocloud.iaas.home import Home
+    from robocloud.storage import SqlRequestStore
+
+    robots = [
+        Robot.model_validate({
+            "id": f"b-{i:05d}", "cloud": "cloud-b", "position": [1.0, 1.0], "speed": 1.0,
+            "battery": 90.0, "status": "idle", "travel_cost_per_m": 0.1,
+            "capabilities": {"grabber": {"kind": "actuating", "time": 5.0, "cost": 1.0}},
+        })
+        for i in range(size)
+    ]
+    with tempfile.TemporaryDirectory() as folder:
+        store = SqlRequestStore(f"sqlite:///{Path(folder) / 'cloud-b.db'}")
+        home = Home("cloud-b", store, MemoryRobotLink("cloud-b", robots), lease_max=3600)
+
+        def lend(i: int) -> None:
+            lease = Reservation(request_id=f"req-{i:05d}", robots=[robots[i].id])
+            assert home.reserve("cloud-a", lease).taken == []
+
+        def release(i: int) -> None:
+            assert home.release("cloud-a", Release(request_id=f"req-{i:05d}")).ok
+
+        for i in range(size):
+            lend(i)
+
+        def timed(work: Callable[[int], object], after: Callable[[int], object] | None = None
+                  ) -> float:
+            samples = []
+            for _ in range(reps):
+                i = rng.randrange(size)
+                started = time.perf_counter()
+                work(i)
+                samples.append((time.perf_counter() - started) * 1e6)
+                if after is not None:
+                    after(i)  # untimed: keeps ``size`` loans held
+            return statistics.median(samples)
+
+        row = {
+            "loans": size,
+            "loan_of": timed(lambda i: store.loan_of(robots[i].id)),
+            "lent_for": timed(lambda i: home.lent_for(robots[i].id)),
+            "by_request": timed(lambda i: store.loans("cloud-a", f"req-{i:05d}")),
+            "release": timed(release, after=lend),
+        }
+        assert len(store.loans()) == size
+        store.close()
+    return row
+
+
+def run(quick: bool, out: Path) -> SectionReport:
+    workdir = out / "federation-run"
+    workdir.mkdir(parents=True, exist_ok=True)
+    posts = 20 if quick else 60
+    sizes = (10, 1000) if quick else (10, 100, 1000)
+    lookups = loan_lookups(sizes, 100 if quick else 300)
+    runs = cross_cloud(workdir, posts)
+    one, cross = runs["one"], runs["cross"]
+    rows: list[dict[str, Any]] = []
+    for label, result in (("1 cloud, 300 robots", one), ("cloud-a (0) + cloud-b (300)", cross)):
+        rows.append({"setup": label, "what": "POST to dispatched (client)",
+                     "n": len(result["client"]), "median": _median(result["client"]),
+                     "p99": _p99(result["client"]), "remote": result["remote"]})
+        rows.append({"setup": label, "what": "received to dispatched (server)",
+                     "n": len(result["server"]), "median": _median(result["server"]),
+                     "p99": _p99(result["server"]), "remote": result["remote"]})
+    latency = Table(
+        title="POST to dispatched (ms), one cloud vs every robot at another cloud",
+        columns=[Column("setup", "setup"), Column("what", "measured"), Column("n", "n"),
+                 Column("remote", "coalitions from another cloud"),
+                 Column("median", "median ms", "{:.1f}"), Column("p99", "p99 ms", "{:.1f}")],
+        rows=rows,
+    )
+    loans = Table(
+        title="Loan lookups at the home (µs, median), SQLite file store",
+        columns=[Column("loans", "loans held"), Column("loan_of", "store.loan_of", "{:.0f}"),
+                 Column("lent_for", "Home.lent_for", "{:.1f}"),
+                 Column("by_request", "store.loans(origin, request)", "{:.0f}"),
+                 Column("release", "Home.release", "{:.0f}")],
+        rows=lookups,
+    )
+    ratio = _median(cross["client"]) / _median(one["client"])
+    small, large = lookups[0], lookups[-1]
+    lookup_ratio = max(large[k] / small[k] for k in ("loan_of", "by_request", "release"))
+    goals = [
+        Goal("cross-cloud POST to dispatched within 1.2x of one cloud (median)",
+             f"{ratio:.2f}x ({_median(cross['client']):.1f} vs {_median(one['client']):.1f} ms)",
+             ratio <= 1.2, f"{1.2 - ratio:+.2f}x"),
+        Goal(f"loan lookups at {large['loans']:,} loans within 1.5x of {small['loans']}",
+             f"{lookup_ratio:.2f}x (the worst of loan_of, loans by request, release)",
+             lookup_ratio <= 1.5, f"{1.5 - lookup_ratio:+.2f}x"),
+    ]
+    notes = [
+        f"Cross-cloud: {cross['remote']} of {len(cross['client'])} coalitions came from cloud-b "
+        f"(cloud-a has no robots); one cloud: {one['remote']} of {len(one['client'])}.",
+        "Each request needs a grabber and a sound sensor (at most 3 robots) and is canceled "
+        "once dispatched; robots do not move on their own (--no-churn).",
+        "Home.lent_for answers from memory (a dict kept with every loan the home changes): "
+        "the service may ask it on every robot state message.",
+    ]
+    return SectionReport(name="federation", title="Across clouds", rows=[*rows, *lookups],
+                         tables=[latency, loans], notes=notes, goals=goals)

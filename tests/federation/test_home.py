@@ -225,6 +225,21 @@ def test_lent_for_never_asks_the_store(fed: tuple[MemoryNetwork, dict[str, Cloud
     assert calls == []
 
 
+def test_a_stale_copy_of_a_loan_never_brings_it_back(
+    fed: tuple[MemoryNetwork, dict[str, Cloud]],
+) -> None:
+    _, c = fed
+    a, b = c["cloud-a"], c["cloud-b"]
+    lend(a, "req-1", ["b-0"])
+    stale = b.store.loans()  # read by one thread...
+    assert a.overlay.release("cloud-b", Release(request_id="req-1")).ok  # ...ended by another
+    for loan in stale:
+        b.home._remember(loan)  # the first thread caches what it read, late
+    assert b.home.lent_for("b-0") is None
+    lend(a, "req-2", ["b-0"], dispatch=False)  # the robot's next loan is newer: it counts
+    assert b.home.lent_for("b-0") == "req-2"
+
+
 def test_the_origin_decides_which_loans_it_still_uses(
     fed: tuple[MemoryNetwork, dict[str, Cloud]], time: FakeTime
 ) -> None:

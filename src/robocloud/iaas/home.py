@@ -99,12 +99,17 @@ class OriginStatus(Protocol):
 
 @dataclass(frozen=True)
 class _Lent:
-    """What ``lent_for`` needs of a live loan, kept in memory."""
+    """What ``lent_for`` needs of a robot's latest loan, kept in memory.
+
+    An ended loan stays (``active`` false) until the robot's next loan: a
+    stale copy of it, read before it ended, must not bring it back.
+    """
 
     origin: str
     request_id: str
     expires_at: datetime | None
     version: datetime  # the loan's updated_at: an older write never replaces a newer one
+    active: bool = True
 
 
 def _working(state: State | None, request_id: str) -> bool:
@@ -159,7 +164,9 @@ class Home:
         """The origin request the robot is lent for now, or None (from memory: cheap)."""
         with self._lock:
             lent = self._lent.get(robot_id)
-        if lent is None or (lent.expires_at is not None and lent.expires_at < self._clock()):
+        if lent is None or not lent.active:
+            return None
+        if lent.expires_at is not None and lent.expires_at < self._clock():
             return None
         return lent.request_id
 
@@ -415,19 +422,16 @@ class Home:
     def _holder(self, robot: str) -> tuple[str, str] | None:
         with self._lock:
             lent = self._lent.get(robot)
-        return None if lent is None else (lent.origin, lent.request_id)
+        return None if lent is None or not lent.active else (lent.origin, lent.request_id)
 
     def _remember(self, loan: Loan) -> None:
         with self._lock:
             known = self._lent.get(loan.robot)
             if known is not None and known.version > loan.updated_at:
                 return
-            if loan.active:
-                self._lent[loan.robot] = _Lent(
-                    loan.origin, loan.request_id, loan.expires_at, loan.updated_at
-                )
-            elif known is not None:
-                del self._lent[loan.robot]
+            self._lent[loan.robot] = _Lent(
+                loan.origin, loan.request_id, loan.expires_at, loan.updated_at, loan.active
+            )
 
     def _refresh(self, origin: str, request_id: str) -> None:
         for loan in self.store.loans(origin, request_id):

@@ -6,9 +6,8 @@ from datetime import UTC, datetime, timedelta
 
 from sqlalchemy import (
     Column,
-    DateTime,
     ForeignKey,
-    Integer,
+    Index,
     MetaData,
     String,
     Table,
@@ -18,7 +17,7 @@ from sqlalchemy import (
 )
 from storage_testing import Backend, new_in
 
-from robocloud.storage.schema import metadata
+from robocloud.storage.schema import UTCDateTime, metadata, request_history, requests
 
 
 def test_loans_survive_close_and_reopen(sql_backend: Backend) -> None:
@@ -38,39 +37,24 @@ def test_loans_survive_close_and_reopen(sql_backend: Backend) -> None:
 
 
 def old_schema() -> MetaData:
-    """The tables as robocloud made them before loans (the columns the migration reads)."""
+    """The tables as robocloud made them before loans: the same requests and history
+    (constraints and indexes included), and reservations held by requests only."""
     old = MetaData()
-    Table(
-        "requests",
-        old,
-        Column("id", String(32), primary_key=True),
-        Column("application", String(255), nullable=False),
-        Column("label", String),
-        Column("task", String, nullable=False),
-        Column("state", String(16), nullable=False),
-        Column("reason", String),
-        Column("selection", String),
-        Column("idempotency_key", String(255)),
-        Column("created_at", DateTime(timezone=True), nullable=False),
-        Column("updated_at", DateTime(timezone=True), nullable=False),
-    )
-    Table(
-        "request_history",
-        old,
-        Column("request_id", String(32), ForeignKey("requests.id"), primary_key=True),
-        Column("seq", Integer, primary_key=True),
-        Column("kind", String(8), nullable=False),
-        Column("state", String(16), nullable=False),
-        Column("detail", String),
-        Column("at", DateTime(timezone=True), nullable=False),
-    )
+    requests.to_metadata(old)
+    request_history.to_metadata(old)
     Table(
         "reservations",
         old,
         Column("robot_id", String(255), primary_key=True),
-        Column("request_id", String(32), ForeignKey("requests.id"), nullable=False),
-        Column("expires_at", DateTime(timezone=True)),
-        Column("created_at", DateTime(timezone=True), nullable=False),
+        Column(
+            "request_id",
+            String(32),
+            ForeignKey("requests.id", ondelete="CASCADE"),
+            nullable=False,
+        ),
+        Column("expires_at", UTCDateTime),
+        Column("created_at", UTCDateTime, nullable=False),
+        Index("ix_reservations_request", "request_id"),
     )
     return old
 
@@ -132,6 +116,16 @@ def test_a_store_made_before_loans_is_moved_on(sql_backend: Backend) -> None:
     columns = {c["name"] for c in inspect(engine).get_columns("reservations")}
     engine.dispose()
     assert {"loan_id", "request_id"} <= columns
+    # The tables are today's again, constraints included (the next tests use them).
+    engine = create_engine(sql_backend.url)
+    found = inspect(engine)
+    assert {u["name"] for u in found.get_unique_constraints("requests")} == {
+        "uq_requests_idempotency"
+    }
+    assert {c["name"] for c in found.get_check_constraints("reservations")} == {
+        "ck_reservations_one_holder"
+    }
+    engine.dispose()
     # Opening it again finds nothing to move.
     again = sql_backend.open()
     assert again.reservations() == store.reservations()

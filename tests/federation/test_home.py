@@ -86,22 +86,26 @@ def test_a_lease_lapses_unless_dispatched_and_a_confirm_needs_it_live(
 ) -> None:
     _, c = fed
     a, b = c["cloud-a"], c["cloud-b"]
+    rid = a.store.create_request("app", {})[0].id
+    a.origin.coalitions[rid] = ["b-0"]
     # A confirm without a reserve never takes a robot.
-    reply = a.overlay.confirm("cloud-b", Reservation(request_id="req-1", robots=["b-0"]))
+    reply = a.overlay.confirm("cloud-b", Reservation(request_id=rid, robots=["b-0"]))
     assert reply.taken == ["b-0"] and "no live lease" in (reply.error or "")
     assert b.store.reservations() == {}
-    a.overlay.reserve("cloud-b", Reservation(request_id="req-1", robots=["b-0", "b-1"]))
-    assert a.overlay.dispatch("cloud-b", Dispatch(robot="b-0", command=go("req-1"))).ok
-    time.advance(31)
-    # b-1's lease lapsed (never dispatched); b-0's is kept since its dispatch.
-    assert b.home.lent_for("b-1") is None and b.home.lent_for("b-0") == "req-1"
-    reply = a.overlay.confirm("cloud-b", Reservation(request_id="req-1", robots=["b-0", "b-1"]))
-    assert reply.taken == ["b-1"]
-    assert a.overlay.confirm("cloud-b", Reservation(request_id="req-1", robots=["b-0"])).taken == []
-    b.home.reconcile()
-    assert [loan.robot for loan in b.store.loans()] == ["b-0"]
+    a.overlay.reserve("cloud-b", Reservation(request_id=rid, robots=["b-0", "b-1", "b-2"]))
+    assert a.overlay.dispatch("cloud-b", Dispatch(robot="b-0", command=go(rid))).ok
     firm = b.store.loan_of("b-0")
-    assert firm is not None and firm.state == "firm"
+    assert firm is not None and firm.state == "firm"  # dispatched: firm
+    # A lease never dispatched is made firm by a confirm, while it lives.
+    assert a.overlay.confirm("cloud-b", Reservation(request_id=rid, robots=["b-2"])).taken == []
+    time.advance(31)
+    # b-1's lease lapsed (never dispatched nor confirmed); b-0 and b-2 are firm.
+    assert b.home.lent_for("b-1") is None and b.home.lent_for("b-0") == rid
+    reply = a.overlay.confirm("cloud-b", Reservation(request_id=rid, robots=["b-0", "b-1"]))
+    assert reply.taken == ["b-1"]
+    assert a.overlay.confirm("cloud-b", Reservation(request_id=rid, robots=["b-0"])).taken == []
+    b.home.reconcile()  # cloud-a still uses b-0, not b-2
+    assert [loan.robot for loan in b.store.loans()] == ["b-0"]
 
 
 def test_a_refused_dispatch_keeps_nothing(

@@ -7,8 +7,13 @@ from robocloud.fleet import Assign, MemoryRobotLink, RobotLink, State
 
 def robot(robot_id: str, x: float = 0.0, **changes: object) -> Robot:
     fields: dict[str, object] = {
-        "id": robot_id, "cloud": "cloud-a", "position": [x, 0.0], "speed": 2.0,
-        "battery": 80.0, "status": "idle", "travel_cost_per_m": 0.05,
+        "id": robot_id,
+        "cloud": "cloud-a",
+        "position": [x, 0.0],
+        "speed": 2.0,
+        "battery": 80.0,
+        "status": "idle",
+        "travel_cost_per_m": 0.05,
         "capabilities": {"grabber": Capability(kind="actuating", time=60.0, cost=8.0)},
     }
     fields.update(changes)
@@ -57,8 +62,7 @@ def test_an_assigned_robot_travels_works_and_ends_idle_there() -> None:
 
 def test_refusals_cancel_and_faults() -> None:
     clock = Clock()
-    link = MemoryRobotLink("cloud-a", [robot("a-1"), robot("a-2")], offline_after=5.0,
-                           clock=clock)
+    link = MemoryRobotLink("cloud-a", [robot("a-1"), robot("a-2")], offline_after=5.0, clock=clock)
     assert link.assign("a-1", GO).ok
     busy = link.assign("a-1", GO.model_copy(update={"request_id": "r-2"}))
     assert not busy.ok and busy.error == "robot a-1 is busy with request r-1."

@@ -83,18 +83,26 @@ def test_a_confirm_needs_a_live_lease(backend: Backend, clock: FakeClock) -> Non
     assert held(store) == {"b-1": "cloud-a/req-a1"}
 
 
-def test_a_dispatched_lease_no_longer_lapses(backend: Backend, clock: FakeClock) -> None:
+def test_a_dispatched_loan_is_firm(backend: Backend, clock: FakeClock) -> None:
     store = backend.open(clock)
-    assert store.keep_loan("cloud-a", "req-a1", "b-1") is None
-    assert store.lend("cloud-a", "req-a1", ["b-1"], 30) == []
-    assert store.keep_loan("cloud-c", "req-a1", "b-1") is None
-    kept = store.keep_loan("cloud-a", "req-a1", "b-1")
-    assert kept is not None and kept.state == "leased" and kept.expires_at is None
-    assert kept.history[-1].detail == "dispatched: the lease is kept"
-    assert kept.history[-1].kind == "event"
+    assert store.make_firm("cloud-a", "req-a1", "b-1", "dispatched") is None
+    assert store.lend("cloud-a", "req-a1", ["b-1", "b-2"], 30) == []
+    assert store.make_firm("cloud-c", "req-a1", "b-1", "dispatched") is None
+    firm = store.make_firm("cloud-a", "req-a1", "b-1", "dispatched")
+    assert firm is not None and firm.state == "firm" and firm.expires_at is None
+    assert store.make_firm("cloud-a", "req-a1", "b-1", "dispatched") == firm  # once only
     clock.advance(3600)
-    assert store.lapse_loans() == []
+    assert [loan.robot for loan in store.lapse_loans()] == ["b-2"]
+    loan = store.loan_of("b-1")
+    assert loan is not None
+    assert [(h.state, h.detail, h.kind) for h in loan.history] == [
+        ("leased", "lent to cloud-a", "state"),
+        ("firm", "dispatched", "state"),
+    ]
+    # A confirm of a firm loan changes nothing; a lapsed one is never made firm.
     assert store.confirm_loans("cloud-a", "req-a1", ["b-1"]) == []
+    assert store.make_firm("cloud-a", "req-a1", "b-2", "dispatched") is None
+    assert store.loan_of("b-1") == loan
 
 
 def test_a_lapsed_lease_ends_whoever_notices(backend: Backend, clock: FakeClock) -> None:

@@ -29,8 +29,10 @@ def system(tmp_path_factory: pytest.TempPathFactory) -> Iterator[System]:
 @pytest.fixture(scope="module")
 def browser() -> Iterator[Any]:
     if not Path(CHROMIUM).exists():
-        pytest.fail(f"{CHROMIUM} is missing: run tests/wildfire/ensure_chromium.sh "
-                    "(make test does).", pytrace=False)
+        pytest.fail(
+            f"{CHROMIUM} is missing: run tests/wildfire/ensure_chromium.sh (make test does).",
+            pytrace=False,
+        )
     from playwright.sync_api import sync_playwright
 
     playwright = sync_playwright().start()
@@ -57,12 +59,22 @@ def console() -> Console:
 
 
 @pytest.fixture
-def page(browser: Any, system: System, console: Console, screenshots: Path,
-         request: pytest.FixtureRequest) -> Iterator[Any]:
+def page(
+    browser: Any,
+    system: System,
+    console: Console,
+    screenshots: Path,
+    request: pytest.FixtureRequest,
+) -> Iterator[Any]:
     yield from open_page(browser, system, console, screenshots, request.node.name)
 
 
 @pytest.fixture
-def phone_page(browser: Any, system: System, console: Console, screenshots: Path,
-               request: pytest.FixtureRequest) -> Iterator[Any]:
+def phone_page(
+    browser: Any,
+    system: System,
+    console: Console,
+    screenshots: Path,
+    request: pytest.FixtureRequest,
+) -> Iterator[Any]:
     yield from open_page(browser, system, console, screenshots, request.node.name, 390, 844)

@@ -28,12 +28,17 @@ def click_forest(page: Any, x: float, y: float) -> None:
     box = page.locator("#map").bounding_box()
     sx = left + x / 2000 * (right - left)
     sy = top + (2000 - y) / 2000 * (bottom - top)
-    page.mouse.click(box["x"] + sx / width * box["width"],
-                     box["y"] + sy / height * box["height"])
+    page.mouse.click(box["x"] + sx / width * box["width"], box["y"] + sy / height * box["height"])
 
 
-def fill(page: Any, caps: dict[str, int], label: str, priority: str = "time",
-         max_time: str = "1800", min_battery: str = "20") -> None:
+def fill(
+    page: Any,
+    caps: dict[str, int],
+    label: str,
+    priority: str = "time",
+    max_time: str = "1800",
+    min_battery: str = "20",
+) -> None:
     for row in page.locator("#caps .cap").all():
         row.locator("input").fill(str(caps.get(row.get_attribute("data-cap"), 0)))
     page.fill("#max-robots", "6")
@@ -50,8 +55,7 @@ def main(output: Path) -> None:
         try:
             system.start()
             with sync_playwright() as playwright:
-                browser = playwright.chromium.launch(executable_path=CHROMIUM,
-                                                     args=CHROMIUM_ARGS)
+                browser = playwright.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
                 page = browser.new_page(viewport={"width": 1280, "height": 800})
                 page.goto(system.url)
                 expect(page.locator("#caps .cap").first).to_be_attached(timeout=15_000)
@@ -60,7 +64,8 @@ def main(output: Path) -> None:
                 fill(page, {"kicker": 1, "sound": 1}, "east track", "cost")
                 page.click("#send")
                 expect(page.locator("#state-head")).to_have_attribute(
-                    "data-state", "underway", timeout=20_000)
+                    "data-state", "underway", timeout=20_000
+                )
                 page.click("#cancel")
                 expect(page.locator("#state-head")).to_have_attribute("data-state", "canceled")
                 # One the fleet cannot meet: its reason is kept.
@@ -68,13 +73,15 @@ def main(output: Path) -> None:
                 fill(page, {"grabber": 5, "light": 3}, "north ridge", max_time="300")
                 page.click("#send")
                 expect(page.locator("#state-head")).to_have_attribute(
-                    "data-state", "rejected", timeout=20_000)
+                    "data-state", "rejected", timeout=20_000
+                )
                 # The one in the picture: two grabbers and a touch sensor.
                 click_forest(page, 1040, 1130)
                 fill(page, {"grabber": 2, "touch": 1}, "valley fire", "balanced")
                 page.click("#send")
                 expect(page.locator("#state-head")).to_have_attribute(
-                    "data-state", "underway", timeout=20_000)
+                    "data-state", "underway", timeout=20_000
+                )
                 time.sleep(25)
                 page.locator("#map").blur()
                 page.screenshot(path=str(output))

@@ -30,8 +30,10 @@ def map_point(page: Any, x: float, y: float) -> tuple[float, float]:
     box = page.locator("#map").bounding_box()
     sx = AREA["left"] + x / FOREST * (AREA["right"] - AREA["left"])
     sy = AREA["top"] + (FOREST - y) / FOREST * (AREA["bottom"] - AREA["top"])
-    return (box["x"] + sx / AREA["width"] * box["width"],
-            box["y"] + sy / AREA["height"] * box["height"])
+    return (
+        box["x"] + sx / AREA["width"] * box["width"],
+        box["y"] + sy / AREA["height"] * box["height"],
+    )
 
 
 def place_fire(page: Any, x: float, y: float) -> None:
@@ -47,8 +49,14 @@ def wait_for_fleet(page: Any) -> None:
     expect(page.locator("#caps .cap").first).to_be_attached()
 
 
-def fill_limits(page: Any, *, max_time: str = "900", max_cost: str = "100000",
-                min_battery: str = "0", label: str = "") -> None:
+def fill_limits(
+    page: Any,
+    *,
+    max_time: str = "900",
+    max_cost: str = "100000",
+    min_battery: str = "0",
+    label: str = "",
+) -> None:
     page.fill("#max-robots", "10")
     page.fill("#max-cost", max_cost)
     page.fill("#max-time", max_time)
@@ -80,9 +88,11 @@ def test_the_page_loads_everything_from_the_server(page: Any, system: System) ->
     expect(page.locator("#cloud-legend li")).to_have_count(system.clouds)
     for cloud in system.members:
         expect(page.locator(f"#cloud-legend li[data-cloud='{cloud.name}']")).to_contain_text(
-            f"{cloud.name}{system.robots}")
-    fills = page.eval_on_selector_all("#map .robot .shape",
-                                      "shapes => shapes.map(s => s.getAttribute('fill'))")
+            f"{cloud.name}{system.robots}"
+        )
+    fills = page.eval_on_selector_all(
+        "#map .robot .shape", "shapes => shapes.map(s => s.getAttribute('fill'))"
+    )
     assert len(set(fills)) == system.clouds, "each cloud has its colour"
     expect(page.locator("#iaas-name")).to_have_text("IaaS cloud-a")
     # Robots are coloured by cloud and shaped by state.
@@ -105,8 +115,7 @@ def test_a_request_is_dispatched_underway_and_completed(page: Any, system: Syste
 
     state = page.locator("#state-head")
     expect(state).to_have_attribute("data-request", request_id)
-    expect(state).to_have_attribute("data-state", re.compile("underway|completed"),
-                                    timeout=20_000)
+    expect(state).to_have_attribute("data-state", re.compile("underway|completed"), timeout=20_000)
     # The coalition is highlighted on the map, with a line to the fire, and the
     # Pareto front is plotted with the chosen coalition marked.
     coalition = page.locator("#coalition tbody tr")
@@ -123,16 +132,19 @@ def test_a_request_is_dispatched_underway_and_completed(page: Any, system: Syste
     for step in ("received", "selecting", "dispatched", "underway", "completed"):
         expect(page.locator(f"#history li[data-state='{step}']").first).to_be_attached()
     expect(page.locator(f"#request-list li[data-request='{request_id}']")).to_have_attribute(
-        "data-state", "completed")
+        "data-state", "completed"
+    )
     expect(page.locator(f"#request-list li[data-request='{request_id}']")).to_contain_text(
-        "ridge fire")
+        "ridge fire"
+    )
     expect(page.locator("#coalition .progress[data-phase='done']")).to_have_count(size)
     expect(page.get_by_role("button", name="Cancel a Request")).to_be_disabled()
     # Every robot of the coalition is back to idle and shown so.
     robots = page.eval_on_selector_all("#coalition tbody tr", "rs => rs.map(r => r.dataset.robot)")
     for robot in robots:
         expect(page.locator(f"#map .robot[data-robot='{robot}']")).to_have_attribute(
-            "data-status", "idle", timeout=10_000)
+            "data-status", "idle", timeout=10_000
+        )
 
 
 def test_another_request_is_canceled(page: Any, system: System) -> None:
@@ -147,15 +159,15 @@ def test_another_request_is_canceled(page: Any, system: System) -> None:
     request_id = send(page)
     state = page.locator("#state-head")
     expect(state).to_have_attribute("data-request", request_id)
-    expect(state).to_have_attribute("data-state", re.compile("dispatched|underway"),
-                                    timeout=15_000)
+    expect(state).to_have_attribute("data-state", re.compile("dispatched|underway"), timeout=15_000)
 
     page.get_by_role("button", name="Cancel a Request").click()
     expect(page.locator("#cancel-result")).to_have_text(f"{request_id} is canceled.")
     expect(state).to_have_attribute("data-state", "canceled")
     expect(page.locator("#history li[data-state='canceled']")).to_have_count(1)
     expect(page.locator(f"#request-list li[data-request='{request_id}']")).to_have_attribute(
-        "data-state", "canceled")
+        "data-state", "canceled"
+    )
     expect(page.get_by_role("button", name="Cancel a Request")).to_be_disabled()
     with system.iaas() as client:
         assert client.get(f"/v1/requests/{request_id}").json()["state"] == "canceled"
@@ -203,13 +215,17 @@ def test_the_iaas_sentence_is_shown_beside_the_field_it_names(page: Any, console
         if route.request.method != "POST":
             route.fallback()
             return
-        route.fulfill(status=422, content_type="application/json",
-                      body='{"detail": "max_time: input should be less than or equal to 1e9."}')
+        route.fulfill(
+            status=422,
+            content_type="application/json",
+            body='{"detail": "max_time: input should be less than or equal to 1e9."}',
+        )
 
     page.route("**/api/requests", refuse)
     page.click("#send")
     expect(page.locator("#err-max_time")).to_have_text(
-        "Max_time: input should be less than or equal to 1e9.")
+        "Max_time: input should be less than or equal to 1e9."
+    )
     expect(page.locator("#max-time")).to_have_attribute("aria-invalid", "true")
     expect(page.locator("#send-result")).to_contain_text("did not accept")
 
@@ -251,8 +267,7 @@ def test_the_keyboard_alone_places_the_fire_and_sends(page: Any, system: System)
     request_id = page.locator("#send-result").inner_text().split()[1].rstrip(":")
     state = page.locator("#state-head")
     expect(state).to_have_attribute("data-request", request_id)
-    expect(state).to_have_attribute("data-state", re.compile("dispatched|underway"),
-                                    timeout=15_000)
+    expect(state).to_have_attribute("data-state", re.compile("dispatched|underway"), timeout=15_000)
     # Cancel it from the keyboard too: it is two steps back from Get State.
     page.focus("#get-state")
     page.keyboard.press("Shift+Tab")
@@ -279,11 +294,22 @@ def test_the_page_stacks_at_a_phones_width(phone_page: Any, system: System) -> N
 
 def test_robots_of_several_clouds_are_coloured_by_cloud(page: Any) -> None:
     # The federation will make one IaaS list the robots of every cloud.
-    robots = [{"id": f"{c[-1]}-{i:04d}", "cloud": c, "position": [100.0 + 300 * i, 200.0 * n],
-               "speed": 1.0, "battery": 80.0, "status": status, "capabilities": ["light"],
-               "request": None, "progress": None, "seen_ago": 0.1}
-              for n, c in enumerate(["cloud-a", "cloud-b", "cloud-c"], start=1)
-              for i, status in enumerate(["idle", "busy", "offline"])]
+    robots = [
+        {
+            "id": f"{c[-1]}-{i:04d}",
+            "cloud": c,
+            "position": [100.0 + 300 * i, 200.0 * n],
+            "speed": 1.0,
+            "battery": 80.0,
+            "status": status,
+            "capabilities": ["light"],
+            "request": None,
+            "progress": None,
+            "seen_ago": 0.1,
+        }
+        for n, c in enumerate(["cloud-a", "cloud-b", "cloud-c"], start=1)
+        for i, status in enumerate(["idle", "busy", "offline"])
+    ]
     page.route("**/api/robots", lambda route: route.fulfill(json=robots))
     expect(page.locator("#cloud-legend li")).to_have_count(3)
     expect(page.locator("#map .robot")).to_have_count(len(robots))

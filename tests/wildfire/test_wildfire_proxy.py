@@ -28,20 +28,62 @@ KEY = "s3cret-key"
 IAAS = "http://iaas.test:8101"
 
 ROBOTS: list[dict[str, Any]] = [
-    {"id": "a-0001", "cloud": "cloud-a", "kind": "tribot", "position": [10.0, 20.0],
-     "speed": 1.0, "battery": 90.0, "status": "idle", "capabilities": ["grabber", "light"],
-     "request": None, "progress": None, "seen_ago": 0.1},
-    {"id": "a-0002", "cloud": "cloud-a", "kind": "base", "position": [30.0, 40.0],
-     "speed": 1.0, "battery": 50.0, "status": "busy", "capabilities": ["kicker", "light"],
-     "request": None, "progress": None, "seen_ago": 0.1},
-    {"id": "b-0001", "cloud": "cloud-b", "kind": "base", "position": [50.0, 60.0],
-     "speed": 1.0, "battery": 80.0, "status": "idle", "capabilities": ["kicker", "sonar"],
-     "request": None, "progress": None, "seen_ago": 0.2},
+    {
+        "id": "a-0001",
+        "cloud": "cloud-a",
+        "kind": "tribot",
+        "position": [10.0, 20.0],
+        "speed": 1.0,
+        "battery": 90.0,
+        "status": "idle",
+        "capabilities": ["grabber", "light"],
+        "request": None,
+        "progress": None,
+        "seen_ago": 0.1,
+    },
+    {
+        "id": "a-0002",
+        "cloud": "cloud-a",
+        "kind": "base",
+        "position": [30.0, 40.0],
+        "speed": 1.0,
+        "battery": 50.0,
+        "status": "busy",
+        "capabilities": ["kicker", "light"],
+        "request": None,
+        "progress": None,
+        "seen_ago": 0.1,
+    },
+    {
+        "id": "b-0001",
+        "cloud": "cloud-b",
+        "kind": "base",
+        "position": [50.0, 60.0],
+        "speed": 1.0,
+        "battery": 80.0,
+        "status": "idle",
+        "capabilities": ["kicker", "sonar"],
+        "request": None,
+        "progress": None,
+        "seen_ago": 0.2,
+    },
 ]
-REQUEST = {"id": "req-abc123", "label": None, "state": "received", "reason": None,
-           "created_at": "2026-01-01T00:00:00Z", "updated_at": "2026-01-01T00:00:00Z",
-           "task": {}, "coalition": None, "time": None, "cost": None, "pareto": [],
-           "optimizer": None, "selection_ms": None, "history": []}
+REQUEST = {
+    "id": "req-abc123",
+    "label": None,
+    "state": "received",
+    "reason": None,
+    "created_at": "2026-01-01T00:00:00Z",
+    "updated_at": "2026-01-01T00:00:00Z",
+    "task": {},
+    "coalition": None,
+    "time": None,
+    "cost": None,
+    "pareto": [],
+    "optimizer": None,
+    "selection_ms": None,
+    "history": [],
+}
 
 
 class FakeIaas:
@@ -59,8 +101,9 @@ class FakeIaas:
             return httpx.Response(401, json={"detail": "the API key is not valid."})
         path, method = request.url.path, request.method
         if path == "/healthz":
-            return httpx.Response(200, json={"status": "ok", "cloud": "cloud-a", "robots": 3,
-                                             "store": "sqlite"})
+            return httpx.Response(
+                200, json={"status": "ok", "cloud": "cloud-a", "robots": 3, "store": "sqlite"}
+            )
         if path == "/v1/robots":
             return httpx.Response(200, json=ROBOTS)
         if path == "/v1/requests" and method == "GET":
@@ -70,8 +113,10 @@ class FakeIaas:
         if path == "/v1/requests/req-abc123":
             return httpx.Response(200, json=REQUEST)
         if path == "/v1/requests/req-abc123/cancel":
-            return httpx.Response(409, json={"detail": "req-abc123 is completed; a finished "
-                                                       "request cannot be canceled."})
+            return httpx.Response(
+                409,
+                json={"detail": "req-abc123 is completed; a finished request cannot be canceled."},
+            )
         return httpx.Response(404, json={"detail": f"there is no request {path}."})
 
 
@@ -89,6 +134,7 @@ def client(iaas: FakeIaas) -> Iterator[TestClient]:
 
 # --- the page ---------------------------------------------------------------
 
+
 def test_the_page_and_its_files_are_served_with_a_strict_policy(client: TestClient) -> None:
     page = client.get("/")
     assert page.status_code == 200
@@ -98,8 +144,11 @@ def test_the_page_and_its_files_are_served_with_a_strict_policy(client: TestClie
     for asset in re.findall(r'(?:src|href)="(/static/[^"]+)"', page.text):
         answer = client.get(asset)
         assert answer.status_code == 200, asset
-    assert client.get("/static/js/app.js").headers["content-type"].startswith(
-        ("text/javascript", "application/javascript"))
+    assert (
+        client.get("/static/js/app.js")
+        .headers["content-type"]
+        .startswith(("text/javascript", "application/javascript"))
+    )
 
 
 def test_every_asset_is_local_no_cdn() -> None:
@@ -115,9 +164,14 @@ def test_every_asset_is_local_no_cdn() -> None:
 
 
 def test_the_key_never_reaches_the_browser(client: TestClient, iaas: FakeIaas) -> None:
-    answers = [client.get("/"), client.get("/static/js/api.js"), client.get("/api/robots"),
-               client.get("/api/health"), client.get("/api/requests"),
-               client.post("/api/requests/req-abc123/cancel")]
+    answers = [
+        client.get("/"),
+        client.get("/static/js/api.js"),
+        client.get("/api/robots"),
+        client.get("/api/health"),
+        client.get("/api/requests"),
+        client.post("/api/requests/req-abc123/cancel"),
+    ]
     for answer in answers:
         assert KEY not in answer.text
         assert KEY not in str(answer.headers)
@@ -132,8 +186,8 @@ def test_an_unknown_path_is_a_sentence(client: TestClient) -> None:
 
 # --- the proxy --------------------------------------------------------------
 
-def test_robots_of_the_whole_federation_pass_through(client: TestClient,
-                                                     iaas: FakeIaas) -> None:
+
+def test_robots_of_the_whole_federation_pass_through(client: TestClient, iaas: FakeIaas) -> None:
     answer = client.get("/api/robots")
     assert answer.status_code == 200
     assert answer.json() == ROBOTS
@@ -166,8 +220,9 @@ def test_the_iaas_may_say_the_kind_of_each_capability() -> None:
 
 
 def test_the_list_forwards_only_its_own_parameters(client: TestClient, iaas: FakeIaas) -> None:
-    answer = client.get("/api/requests", params={"state": "underway", "limit": "5",
-                                                  "before": "c1", "api_key": "x"})
+    answer = client.get(
+        "/api/requests", params={"state": "underway", "limit": "5", "before": "c1", "api_key": "x"}
+    )
     assert answer.status_code == 200
     assert answer.json()["items"][0]["id"] == "req-abc123"
     sent = iaas.calls[-1].url
@@ -175,8 +230,14 @@ def test_the_list_forwards_only_its_own_parameters(client: TestClient, iaas: Fak
 
 
 def test_a_request_is_sent_as_given(client: TestClient, iaas: FakeIaas) -> None:
-    task = {"location": [1.0, 2.0], "actuating": {"grabber": 1}, "max_robots": 3,
-            "max_cost": 10.0, "max_time": 60.0, "label": "ridge"}
+    task = {
+        "location": [1.0, 2.0],
+        "actuating": {"grabber": 1},
+        "max_robots": 3,
+        "max_cost": 10.0,
+        "max_time": 60.0,
+        "label": "ridge",
+    }
     answer = client.post("/api/requests", json=task, headers={"Idempotency-Key": "k-1"})
     assert answer.status_code == 202
     assert answer.json()["task"] == task
@@ -191,13 +252,17 @@ def test_get_state_of_a_request(client: TestClient) -> None:
     assert client.get("/api/requests/req-abc123").json() == REQUEST
 
 
-@pytest.mark.parametrize(("status", "detail"), [
-    (422, "max_cost: input should be greater than or equal to 0."),
-    (401, "the API key is not valid."),
-    (413, "the body is 70000 bytes; at most 65536 are accepted."),
-])
+@pytest.mark.parametrize(
+    ("status", "detail"),
+    [
+        (422, "max_cost: input should be greater than or equal to 0."),
+        (401, "the API key is not valid."),
+        (413, "the body is 70000 bytes; at most 65536 are accepted."),
+    ],
+)
 def test_iaas_errors_come_back_with_their_status_and_sentence(
-        client: TestClient, iaas: FakeIaas, status: int, detail: str) -> None:
+    client: TestClient, iaas: FakeIaas, status: int, detail: str
+) -> None:
     iaas.answer = lambda _: httpx.Response(status, json={"detail": detail})
     answer = client.post("/api/requests", json={"location": [0, 0]})
     assert answer.status_code == status
@@ -218,9 +283,12 @@ def test_an_unknown_request_is_404(client: TestClient) -> None:
 
 @pytest.mark.parametrize("request_id", ["..", "a.b", "%2E%2E", "x" * 200, "-x"])
 def test_an_id_that_could_leave_its_route_never_reaches_the_iaas(
-        client: TestClient, iaas: FakeIaas, request_id: str) -> None:
-    for answer in (client.get(f"/api/requests/{request_id}"),
-                   client.post(f"/api/requests/{request_id}/cancel")):
+    client: TestClient, iaas: FakeIaas, request_id: str
+) -> None:
+    for answer in (
+        client.get(f"/api/requests/{request_id}"),
+        client.post(f"/api/requests/{request_id}/cancel"),
+    ):
         assert answer.status_code == 404
         assert answer.json()["detail"]
     assert not [c for c in iaas.calls if c.url.path.startswith("/v1/requests/")]
@@ -233,8 +301,9 @@ def test_an_unreachable_iaas_is_502_with_a_sentence(client: TestClient, iaas: Fa
     iaas.answer = refuse
     answer = client.get("/api/robots")
     assert answer.status_code == 502
-    assert answer.json() == {"detail": f"the IaaS at {IAAS} cannot be reached "
-                                       "(Connection refused)."}
+    assert answer.json() == {
+        "detail": f"the IaaS at {IAAS} cannot be reached (Connection refused)."
+    }
 
 
 def test_a_silent_iaas_is_502_too(client: TestClient, iaas: FakeIaas) -> None:
@@ -251,8 +320,9 @@ def test_an_answer_that_is_not_json(client: TestClient, iaas: FakeIaas) -> None:
     iaas.answer = lambda _: httpx.Response(500, text="<html>oops</html>")
     answer = client.get("/api/robots")
     assert answer.status_code == 500
-    assert answer.json() == {"detail": "the IaaS answered 500 Internal Server Error without "
-                                       "a reason."}
+    assert answer.json() == {
+        "detail": "the IaaS answered 500 Internal Server Error without a reason."
+    }
     iaas.answer = lambda _: httpx.Response(200, text="<html>a proxy page</html>")
     answer = client.get("/api/robots")
     assert answer.status_code == 502
@@ -262,8 +332,11 @@ def test_an_answer_that_is_not_json(client: TestClient, iaas: FakeIaas) -> None:
 
 
 def test_bodies_are_bounded(client: TestClient, iaas: FakeIaas) -> None:
-    answer = client.post("/api/requests", content=b"x" * (64 * 1024 + 1),
-                         headers={"content-type": "application/json"})
+    answer = client.post(
+        "/api/requests",
+        content=b"x" * (64 * 1024 + 1),
+        headers={"content-type": "application/json"},
+    )
     assert answer.status_code == 413
     answer = client.post("/api/requests", content=b"")
     assert answer.status_code == 422
@@ -284,6 +357,7 @@ def test_no_key_means_no_authorization_header(iaas: FakeIaas) -> None:
 
 # --- the command ------------------------------------------------------------
 
+
 def test_the_command_line() -> None:
     import argparse
 
@@ -303,13 +377,28 @@ def test_the_command_line() -> None:
 
 
 def test_the_module_runs_as_a_command() -> None:
-    done = subprocess.run([sys.executable, "-m", "robocloud.wildfire.command", "--help"],
-                          capture_output=True, text=True, timeout=60,
-                          cwd=Path(__file__).parent)
+    done = subprocess.run(
+        [sys.executable, "-m", "robocloud.wildfire.command", "--help"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=Path(__file__).parent,
+    )
     assert done.returncode == 0
     assert "--iaas URL" in done.stdout and "--listen HOST:PORT" in done.stdout
-    done = subprocess.run([sys.executable, "-m", "robocloud.wildfire.command", "--iaas",
-                           "http://127.0.0.1:1", "--timeout", "0"],
-                          capture_output=True, text=True, timeout=60)
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "robocloud.wildfire.command",
+            "--iaas",
+            "http://127.0.0.1:1",
+            "--timeout",
+            "0",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert done.returncode == 2
     assert done.stderr.strip() == "robocloud wildfire: --timeout must be positive."

@@ -25,8 +25,15 @@ class Console:
         return [e for e in self.errors if not any(p.search(e) for p in self.expected)]
 
 
-def open_page(browser: Any, system: System, console: Console, screenshots: Path,
-              name: str, width: int = 1280, height: int = 800) -> Iterator[Any]:
+def open_page(
+    browser: Any,
+    system: System,
+    console: Console,
+    screenshots: Path,
+    name: str,
+    width: int = 1280,
+    height: int = 800,
+) -> Iterator[Any]:
     context = browser.new_context(viewport={"width": width, "height": height})
     page = context.new_page()
     page.set_default_timeout(15_000)

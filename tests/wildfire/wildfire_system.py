@@ -22,8 +22,14 @@ import httpx
 API_KEY = "wildfire-test-key"
 CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_ARGS = [
-    "--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-    "--disable-background-networking", "--disable-component-update", "--disable-sync",
+    "--headless=new",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
 ]
 
 
@@ -34,8 +40,7 @@ def free_port() -> int:
     return port
 
 
-def wait_until(predicate: Callable[[], Any], timeout: float, what: str,
-               every: float = 0.1) -> Any:
+def wait_until(predicate: Callable[[], Any], timeout: float, what: str, every: float = 0.1) -> Any:
     deadline = time.monotonic() + timeout
     while True:
         try:
@@ -84,8 +89,9 @@ class System:
     members: list[Cloud] = field(default_factory=list)
 
     def __post_init__(self) -> None:
-        self.members = [Cloud(f"cloud-{chr(ord('a') + i)}", self.seed + i)
-                        for i in range(self.clouds)]
+        self.members = [
+            Cloud(f"cloud-{chr(ord('a') + i)}", self.seed + i) for i in range(self.clouds)
+        ]
 
     @property
     def iaas_url(self) -> str:
@@ -96,15 +102,20 @@ class System:
         return f"http://127.0.0.1:{self.wildfire_port}/"
 
     def iaas(self) -> httpx.Client:
-        return httpx.Client(base_url=self.iaas_url, timeout=10.0,
-                            headers={"Authorization": f"Bearer {API_KEY}"})
+        return httpx.Client(
+            base_url=self.iaas_url, timeout=10.0, headers={"Authorization": f"Bearer {API_KEY}"}
+        )
 
     def _start(self, name: str, argv: list[str], env: dict[str, str] | None = None) -> None:
         log = open(self.workdir / f"{name}.log", "ab")  # noqa: SIM115 - closed in stop()
         self.logs[name] = log
         self.processes[name] = subprocess.Popen(
-            [sys.executable, "-m", *argv], stdout=log, stderr=subprocess.STDOUT,
-            cwd=self.workdir, env={**os.environ, **(env or {})})
+            [sys.executable, "-m", *argv],
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            cwd=self.workdir,
+            env={**os.environ, **(env or {})},
+        )
 
     def _check_alive(self) -> None:
         for name, process in self.processes.items():
@@ -118,31 +129,78 @@ class System:
     def start(self) -> System:
         for i, cloud in enumerate(self.members):
             peers = [arg for other in self.members[:i] for arg in ("--peer", other.zenoh)]
-            self._start(f"{cloud.name}-iaas", [
-                "robocloud.cli.main", "iaas", "--cloud", cloud.name,
-                "--listen", f"127.0.0.1:{cloud.iaas_port}", "--zenoh", cloud.zenoh, *peers,
-                "--store", f"sqlite:///{self.workdir / f'{cloud.name}.db'}",
-                "--time-scale", str(self.speedup), "--log-level", "warning",
-            ], env={"ROBOCLOUD_API_KEYS": f"wildfire={API_KEY}"})
+            self._start(
+                f"{cloud.name}-iaas",
+                [
+                    "robocloud.cli.main",
+                    "iaas",
+                    "--cloud",
+                    cloud.name,
+                    "--listen",
+                    f"127.0.0.1:{cloud.iaas_port}",
+                    "--zenoh",
+                    cloud.zenoh,
+                    *peers,
+                    "--store",
+                    f"sqlite:///{self.workdir / f'{cloud.name}.db'}",
+                    "--time-scale",
+                    str(self.speedup),
+                    "--log-level",
+                    "warning",
+                ],
+                env={"ROBOCLOUD_API_KEYS": f"wildfire={API_KEY}"},
+            )
         for cloud in self.members:
-            self._wait(f"{cloud.name}'s IaaS to answer /healthz", 30,
-                       lambda url=cloud.url: httpx.get(f"{url}/healthz", timeout=1).status_code
-                       == 200)
-            self._start(f"{cloud.name}-sim", [
-                "robocloud.cli.main", "sim", "--cloud", cloud.name, "--robots",
-                str(self.robots), "--connect", cloud.zenoh, "--speedup", str(self.speedup),
-                "--seed", str(cloud.seed), "--no-churn",
-            ])
-        self._start("wildfire", [
-            "robocloud.wildfire.command", "--iaas", self.iaas_url,
-            "--listen", f"127.0.0.1:{self.wildfire_port}", "--log-level", "warning",
-        ], env={"ROBOCLOUD_WILDFIRE_API_KEY": API_KEY})
+            self._wait(
+                f"{cloud.name}'s IaaS to answer /healthz",
+                30,
+                lambda url=cloud.url: httpx.get(f"{url}/healthz", timeout=1).status_code == 200,
+            )
+            self._start(
+                f"{cloud.name}-sim",
+                [
+                    "robocloud.cli.main",
+                    "sim",
+                    "--cloud",
+                    cloud.name,
+                    "--robots",
+                    str(self.robots),
+                    "--connect",
+                    cloud.zenoh,
+                    "--speedup",
+                    str(self.speedup),
+                    "--seed",
+                    str(cloud.seed),
+                    "--no-churn",
+                ],
+            )
+        self._start(
+            "wildfire",
+            [
+                "robocloud.wildfire.command",
+                "--iaas",
+                self.iaas_url,
+                "--listen",
+                f"127.0.0.1:{self.wildfire_port}",
+                "--log-level",
+                "warning",
+            ],
+            env={"ROBOCLOUD_WILDFIRE_API_KEY": API_KEY},
+        )
         total = self.robots * self.clouds
         with self.iaas() as client:
-            self._wait(f"{total} robots to report", 40, lambda: len(client.get(
-                "/v1/robots", params={"scope": "federation"}).json()) >= total)
-        self._wait("the wildfire server to reach the IaaS", 30,
-                   lambda: httpx.get(f"{self.url}api/health", timeout=2).status_code == 200)
+            self._wait(
+                f"{total} robots to report",
+                40,
+                lambda: (
+                    len(client.get("/v1/robots", params={"scope": "federation"}).json()) >= total
+                ),
+            )
+        self._wait(
+            "the wildfire server to reach the IaaS",
+            30,
+            lambda: httpx.get(f"{self.url}api/health", timeout=2).status_code == 200,
+        )
         return self
 
     def _wait(self, what: str, timeout: float, predicate: Callable[[], Any]) -> None:

@@ -11,9 +11,10 @@ mutual TLS, the router let only that cloud's certificate send on it), never
 what the payload says. The home enforces the leases:
 
 - a loan starts as a lease the home sets, at most ``lease_max`` seconds
-  whatever the origin asks, and kept (no longer lapsing) once the robot
-  accepted the dispatch the home forwarded; only a live lease can be
-  confirmed (firm);
+  whatever the origin asks, kept until the dispatch the home forwards: once
+  the robot accepted it the loan is firm (it no longer lapses). A confirm
+  needs a live loan of the sender's request: it makes firm a lease never
+  dispatched, and is refused without one;
 - a loan ends when its robot reports the task done or failed, when the
   origin releases or cancels it, when its lease lapses, when the origin says
   its request is over or no longer uses the robot (``reconcile``, every few
@@ -110,6 +111,7 @@ class _Lent:
     expires_at: datetime | None
     version: datetime  # the loan's updated_at: an older write never replaces a newer one
     active: bool = True
+    firm: bool = False
 
 
 def _working(state: State | None, request_id: str) -> bool:
@@ -249,6 +251,8 @@ class Home:
         if refusal:
             return ReserveReply(taken=list(reservation.robots), error=refusal)
         request_id = reservation.request_id
+        if all(self._firm(robot, origin, request_id) for robot in reservation.robots):
+            return ReserveReply()  # dispatched, so firm already: nothing to write
         lost = self.store.confirm_loans(origin, request_id, reservation.robots)
         if lost:
             error = (
@@ -285,13 +289,13 @@ class Home:
             return Ack.refuse(robot, request_id, error)
         ack = self.link.assign(robot, command)
         if ack.ok:
-            # The robot works for the origin now: its lease no longer lapses. A
-            # refused robot's lease lapses as any other.
-            kept = self.store.keep_loan(origin, request_id, robot)
-            if kept is None:  # it lapsed or ended meanwhile: stop the robot again
+            # The robot works for the origin now: the loan is firm, it no longer
+            # lapses. A robot that refused keeps only its lease, which lapses.
+            firm = self.store.make_firm(origin, request_id, robot, "dispatched")
+            if firm is None:  # it lapsed or ended meanwhile: stop the robot again
                 self.link.cancel(robot, request_id)
                 return Ack.refuse(robot, request_id, f"the lease on robot {robot} lapsed.")
-            self._remember(kept)
+            self._remember(firm)
         return ack
 
     def cancel(self, origin: str, release: Release) -> Done:
@@ -424,13 +428,29 @@ class Home:
             lent = self._lent.get(robot)
         return None if lent is None or not lent.active else (lent.origin, lent.request_id)
 
+    def _firm(self, robot: str, origin: str, request_id: str) -> bool:
+        """Whether the robot is firmly lent to this origin request (from memory)."""
+        with self._lock:
+            lent = self._lent.get(robot)
+        return (
+            lent is not None
+            and lent.active
+            and lent.firm
+            and (lent.origin, lent.request_id) == (origin, request_id)
+        )
+
     def _remember(self, loan: Loan) -> None:
         with self._lock:
             known = self._lent.get(loan.robot)
             if known is not None and known.version > loan.updated_at:
                 return
             self._lent[loan.robot] = _Lent(
-                loan.origin, loan.request_id, loan.expires_at, loan.updated_at, loan.active
+                loan.origin,
+                loan.request_id,
+                loan.expires_at,
+                loan.updated_at,
+                loan.active,
+                loan.state == "firm",
             )
 
     def _refresh(self, origin: str, request_id: str) -> None:

@@ -317,8 +317,9 @@ class MemoryRequestStore:
                     self._holds[robot] = _Hold(None, None, loan.id)
             return []
 
-    def keep_loan(self, origin: str, request_id: str, robot_id: str) -> Loan | None:
+    def make_firm(self, origin: str, request_id: str, robot_id: str, why: str) -> Loan | None:
         robots = rules.check_robots([robot_id])
+        rules.check_why(why)
         with self._lock:
             now = self._clock()
             self._drop_expired(robots, now)
@@ -326,12 +327,10 @@ class MemoryRequestStore:
             if loan_id is None:
                 return None
             loan = self._loans[loan_id]
-            if loan.expires_at is not None:
-                loan = self._change(
-                    loan, now, expires_at=None, detail="dispatched: the lease is kept"
-                )
+            if loan.state == "leased":
+                loan = self._change(loan, now, state="firm", expires_at=None, detail=why)
                 self._holds[robot_id] = _Hold(None, None, loan.id)
-            return loan
+            return replace(loan, history=())
 
     def end_loans(
         self,

@@ -10,7 +10,7 @@
                      expires_at, created_at
     loans            id PK, robot_id, origin, request_id (the origin's), state,
                      expires_at, reason, tell_origin, created_at, updated_at
-    loan_history     (loan_id -> loans.id, seq) PK, state, detail, at
+    loan_history     id PK (a counter), loan_id -> loans.id, state, detail, at
 
 JSON is TEXT (``json.dumps``) so both databases store and compare it alike.
 Times are UTC: ``timestamptz`` on PostgreSQL, UTC text on SQLite. The primary
@@ -125,12 +125,13 @@ loans = Table(
 loan_history = Table(
     "loan_history",
     metadata,
+    # A counter, not (loan, seq): a line is added without reading the last one.
+    Column("id", Integer, primary_key=True, autoincrement=True),
     Column("loan_id", String(32), ForeignKey("loans.id", ondelete="CASCADE"), nullable=False),
-    Column("seq", Integer, nullable=False),
     Column("state", String(16), nullable=False),
     Column("detail", Text),
     Column("at", UTCDateTime, nullable=False),
-    PrimaryKeyConstraint("loan_id", "seq", name="pk_loan_history"),
+    Index("ix_loan_history_loan", "loan_id", "id"),
 )
 
 reservations = Table(

@@ -23,6 +23,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import AbstractContextManager, contextmanager, nullcontext
+from dataclasses import replace
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, TypeVar
@@ -392,20 +393,12 @@ class SqlRequestStore:
         def work(conn: Connection) -> builtins.list[str]:
             now = self._clock()
             expires_at = rules.check_lease(lease_seconds, now)
-            self._drop_lapsed(conn, robots, now)
-            mine = self._lent(conn, origin, request_id, robots)
-            held = {
-                row.robot_id: row.loan_id
-                for row in conn.execute(
-                    select(reservations.c.robot_id, reservations.c.loan_id).where(
-                        reservations.c.robot_id.in_(robots)
-                    )
-                )
-            }
+            held = {row.robot_id: row for row in self._live_holds(conn, robots, now)}
+            mine: dict[str, Any] = {}
+            if any(row.loan_id is not None for row in held.values()):
+                mine = self._lent(conn, origin, request_id, robots, now)
             taken = [
-                r
-                for r in robots
-                if r in held and (held[r] is None or r not in mine or held[r] != mine[r].id)
+                r for r in robots if r in held and (r not in mine or held[r].loan_id != mine[r].id)
             ]
             if taken:
                 return taken
@@ -432,7 +425,7 @@ class SqlRequestStore:
                     ],
                 )
                 self._loan_history(
-                    conn, [(ids[r], "leased", f"lent to {origin}") for r in new], now, first=True
+                    conn, [(ids[r], "leased", f"lent to {origin}") for r in new], now
                 )
                 holds = [
                     {"robot_id": r, "loan_id": ids[r], "expires_at": expires_at, "created_at": now}
@@ -450,7 +443,16 @@ class SqlRequestStore:
                 if r in mine and mine[r].expires_at is not None and mine[r].expires_at < expires_at
             ]
             if longer:
-                self._set_lease(conn, longer, expires_at, now)
+                conn.execute(
+                    update(loans)
+                    .where(loans.c.id.in_(longer))
+                    .values(expires_at=expires_at, updated_at=now)
+                )
+                conn.execute(
+                    update(reservations)
+                    .where(reservations.c.loan_id.in_(longer))
+                    .values(expires_at=expires_at)
+                )
             return []
 
         return self._run(work, write=True, retry_integrity=True)
@@ -462,40 +464,29 @@ class SqlRequestStore:
 
         def work(conn: Connection) -> builtins.list[str]:
             now = self._clock()
-            self._drop_lapsed(conn, robots, now)
-            mine = self._lent(conn, origin, request_id, robots)
+            mine = self._lent(conn, origin, request_id, robots, now)
             lost = [r for r in robots if r not in mine]
             if lost:
                 return lost
-            leased = [row.id for row in mine.values() if row.state == "leased"]
-            if leased:
-                conn.execute(
-                    update(loans)
-                    .where(loans.c.id.in_(leased))
-                    .values(state="firm", expires_at=None, updated_at=now)
-                )
-                conn.execute(
-                    update(reservations)
-                    .where(reservations.c.loan_id.in_(leased))
-                    .values(expires_at=None)
-                )
-                self._loan_history(conn, [(i, "firm", "confirmed") for i in leased], now)
+            self._make_firm(conn, [row for row in mine.values()], now, "confirmed")
             return []
 
         return self._run(work, write=True)
 
-    def keep_loan(self, origin: str, request_id: str, robot_id: str) -> Loan | None:
+    def make_firm(self, origin: str, request_id: str, robot_id: str, why: str) -> Loan | None:
         robots = rules.check_robots([robot_id])
+        rules.check_why(why)
 
         def work(conn: Connection) -> Loan | None:
             now = self._clock()
-            self._drop_lapsed(conn, robots, now)
-            row = self._lent(conn, origin, request_id, robots).get(robot_id)
+            row = self._lent(conn, origin, request_id, robots, now).get(robot_id)
             if row is None:
                 return None
-            if row.expires_at is not None:
-                self._set_lease(conn, [row.id], None, now, "dispatched: the lease is kept")
-            return self._loans_by_id(conn, [row.id], history=True)[0]
+            self._make_firm(conn, [row], now, why)
+            loan = _loan(row)
+            if loan.state == "firm":
+                return loan
+            return replace(loan, state="firm", expires_at=None, updated_at=now)
 
         return self._run(work, write=True)
 
@@ -534,7 +525,12 @@ class SqlRequestStore:
     def lapse_loans(self) -> builtins.list[Loan]:
         def work(conn: Connection) -> builtins.list[Loan]:
             now = self._clock()
-            ids = self._drop_lapsed(conn, None, now)
+            lapsed = conn.execute(
+                select(reservations.c.robot_id, reservations.c.loan_id).where(
+                    reservations.c.loan_id.is_not(None), reservations.c.expires_at < now
+                )
+            ).all()
+            ids = self._drop(conn, lapsed, now)
             return self._loans_by_id(conn, ids, history=False)
 
         return self._run(work, write=True)
@@ -791,66 +787,80 @@ class SqlRequestStore:
 
     # loans' rows
 
-    def _drop_lapsed(
-        self, conn: Connection, robots: builtins.list[str] | None, now: datetime
-    ) -> builtins.list[str]:
-        """Free the robots whose lease lapsed (of ``robots``, None: all); end lapsed loans.
+    def _live_holds(
+        self, conn: Connection, robots: builtins.list[str], now: datetime
+    ) -> builtins.list[Any]:
+        """The holds on ``robots`` that have not lapsed; lapsed ones are deleted (free).
 
-        A lapsed lease is free, whoever held it. Returns the ids of the loans ended.
+        A lapsed lease is free, whoever held it; a lapsed loan ends.
         """
-        lapsed = select(reservations.c.robot_id, reservations.c.loan_id).where(
-            reservations.c.expires_at < now
-        )
-        if robots is not None:
-            lapsed = lapsed.where(reservations.c.robot_id.in_(robots))
-        rows = conn.execute(lapsed.order_by(reservations.c.robot_id)).all()
-        if not rows:
+        rows = conn.execute(
+            select(
+                reservations.c.robot_id,
+                reservations.c.request_id,
+                reservations.c.loan_id,
+                reservations.c.expires_at,
+            ).where(reservations.c.robot_id.in_(robots))
+        ).all()
+        lapsed = [row for row in rows if rules.is_expired(row.expires_at, now)]
+        if lapsed:
+            self._drop(conn, lapsed, now)
+        return [row for row in rows if not rules.is_expired(row.expires_at, now)]
+
+    def _drop(self, conn: Connection, lapsed: Sequence[Any], now: datetime) -> builtins.list[str]:
+        """Delete lapsed holds (rows with robot_id and loan_id); end their loans."""
+        if not lapsed:
             return []
         conn.execute(
             delete(reservations).where(
-                reservations.c.robot_id.in_([row.robot_id for row in rows]),
+                reservations.c.robot_id.in_([row.robot_id for row in lapsed]),
                 reservations.c.expires_at < now,
             )
         )
-        ended = [row.loan_id for row in rows if row.loan_id is not None]
+        ended = [row.loan_id for row in lapsed if row.loan_id is not None]
         self._end_loans(conn, ended, now, "the lease lapsed", False)
         return ended
 
     def _lent(
-        self, conn: Connection, origin: str, request_id: str, robots: builtins.list[str]
+        self,
+        conn: Connection,
+        origin: str,
+        request_id: str,
+        robots: builtins.list[str],
+        now: datetime,
     ) -> dict[str, Any]:
-        """The loans of ``robots`` to the origin request that are not released, locked."""
+        """The live loans (not released, lease not lapsed) of ``robots`` to the origin request.
+
+        Locked until the transaction ends (PostgreSQL).
+        """
         rows = conn.execute(
-            select(loans.c.id, loans.c.robot_id, loans.c.state, loans.c.expires_at)
+            select(loans)
             .where(
                 loans.c.origin == origin,
                 loans.c.request_id == request_id,
                 loans.c.robot_id.in_(robots),
                 loans.c.state != "released",
+                _unexpired(loans.c.expires_at, now),
             )
             .order_by(loans.c.id)
             .with_for_update()
         ).all()
         return {row.robot_id: row for row in rows}
 
-    def _set_lease(
-        self,
-        conn: Connection,
-        ids: builtins.list[str],
-        expires_at: datetime | None,
-        now: datetime,
-        detail: str | None = None,
-    ) -> None:
+    def _make_firm(self, conn: Connection, rows: Sequence[Any], now: datetime, why: str) -> None:
+        """Make these loans (rows of ``_lent``) firm: their robots no longer lapse."""
+        ids = [row.id for row in rows if row.state == "leased"]
+        if not ids:
+            return
         conn.execute(
-            update(loans).where(loans.c.id.in_(ids)).values(expires_at=expires_at, updated_at=now)
+            update(loans)
+            .where(loans.c.id.in_(ids))
+            .values(state="firm", expires_at=None, updated_at=now)
         )
         conn.execute(
-            update(reservations)
-            .where(reservations.c.loan_id.in_(ids))
-            .values(expires_at=expires_at)
+            update(reservations).where(reservations.c.loan_id.in_(ids)).values(expires_at=None)
         )
-        if detail is not None:
-            self._loan_history(conn, [(i, "leased", detail) for i in ids], now)
+        self._loan_history(conn, [(i, "firm", why) for i in ids], now)
 
     def _end_loans(
         self,
@@ -877,39 +887,17 @@ class SqlRequestStore:
         self._loan_history(conn, [(i, "released", why) for i in ids], now)
 
     def _loan_history(
-        self,
-        conn: Connection,
-        entries: builtins.list[tuple[str, str, str]],
-        now: datetime,
-        first: bool = False,
+        self, conn: Connection, entries: builtins.list[tuple[str, str, str]], now: datetime
     ) -> None:
-        """Add (loan id, state, detail) lines; the caller holds the loans' rows."""
-        if not entries:
-            return
-        last: dict[str, int] = {}
-        if not first:
-            ids = sorted({loan_id for loan_id, _, _ in entries})
-            last = {
-                row.loan_id: row.seq
-                for row in conn.execute(
-                    select(loan_history.c.loan_id, func.max(loan_history.c.seq).label("seq"))
-                    .where(loan_history.c.loan_id.in_(ids))
-                    .group_by(loan_history.c.loan_id)
-                )
-            }
-        rows = []
-        for loan_id, state, detail in entries:
-            last[loan_id] = last.get(loan_id, 0) + 1
-            rows.append(
-                {
-                    "loan_id": loan_id,
-                    "seq": last[loan_id],
-                    "state": state,
-                    "detail": detail,
-                    "at": now,
-                }
+        """Add (loan id, state, detail) lines; their order is the table's own counter's."""
+        if entries:
+            conn.execute(
+                insert(loan_history),
+                [
+                    {"loan_id": loan_id, "state": state, "detail": detail, "at": now}
+                    for loan_id, state, detail in entries
+                ],
             )
-        conn.execute(insert(loan_history), rows)
 
     def _loans_by_id(
         self, conn: Connection, ids: builtins.list[str], history: bool
@@ -922,7 +910,7 @@ class SqlRequestStore:
             for line in conn.execute(
                 select(loan_history)
                 .where(loan_history.c.loan_id.in_(ids))
-                .order_by(loan_history.c.loan_id, loan_history.c.seq)
+                .order_by(loan_history.c.loan_id, loan_history.c.id)
             ):
                 previous = lines[line.loan_id][-1].state if lines[line.loan_id] else None
                 lines[line.loan_id].append(
@@ -964,11 +952,7 @@ class SqlRequestStore:
         """Reserve ``robots`` for the (locked) request, or return those another holds."""
         now = self._clock()
         expires_at = rules.lease_end(now, lease_seconds)
-        self._drop_lapsed(conn, robots, now)
-        held = {
-            row.robot_id: row
-            for row in conn.execute(select(reservations).where(reservations.c.robot_id.in_(robots)))
-        }
+        held = {row.robot_id: row for row in self._live_holds(conn, robots, now)}
         taken = [r for r in robots if r in held and held[r].request_id != request_id]
         if taken:
             return taken

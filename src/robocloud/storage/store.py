@@ -174,7 +174,7 @@ class RequestStore(Protocol):
     def confirm_loans(
         self, origin: str, request_id: str, robot_ids: Sequence[str]
     ) -> builtins.list[str]:
-        """Make the loans of the robots to this origin request firm.
+        """Make the loans of the robots to this origin request firm (those already firm stay).
 
         Returns [] on success, or the robots with no live loan to it (never
         leased, lapsed, released or lent to another), and then nothing changes:
@@ -182,11 +182,12 @@ class RequestStore(Protocol):
         """
         ...
 
-    def keep_loan(self, origin: str, request_id: str, robot_id: str) -> Loan | None:
-        """The robot was dispatched for the loan: its lease no longer lapses.
+    def make_firm(self, origin: str, request_id: str, robot_id: str, why: str) -> Loan | None:
+        """Make the robot's live loan to this origin request firm (it no longer lapses).
 
-        Returns the loan, or None when the robot has no live loan to this
-        origin request (nothing changes then).
+        The home does so once the robot accepted the dispatch it forwarded.
+        Returns the loan (without its history), or None when the robot has no
+        live loan to this origin request (nothing changes then).
         """
         ...
 

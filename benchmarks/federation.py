@@ -5,7 +5,8 @@
   robots; the cross-cloud run is cloud-a with no robot of its own and cloud-b
   with the same 300 robots, so every coalition is lent by cloud-b: gathered
   over the overlay, leased, dispatched and confirmed at its home. Same task,
-  same requests, same process. Goal: within 1.2x of one cloud.
+  same process; both run at once and take turns, request by request. Goal:
+  within 1.2x of one cloud.
 - Loan lookups at a home (in process, a SQLite file store, as an IaaS keeps
   it): with 10, 100 and 1,000 loans held, the median time of finding a
   robot's loan in the store (``loan_of``), of ``Home.lent_for`` (what the
@@ -17,6 +18,7 @@
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import random
 import secrets
@@ -32,7 +34,7 @@ from typing import Any
 import httpx
 
 from benchmarks.report import Column, Goal, SectionReport, Table
-from benchmarks.service import _median, _p99, _port, _wait, post_to_dispatched
+from benchmarks.service import TASK, _at, _median, _p99, _port, _wait
 
 ROBOTS = 300
 
@@ -86,13 +88,55 @@ def federation(workdir: Path, counts: dict[str, int]) -> Iterator[tuple[str, str
 
 
 def cross_cloud(workdir: Path, posts: int) -> dict[str, dict[str, Any]]:
-    """POST-to-dispatched on one cloud, then with every robot at another cloud."""
-    out = {}
-    with federation(workdir, {"cloud-a": ROBOTS}) as (url, key):
-        out["one"] = post_to_dispatched(url, key, posts)
-    with federation(workdir, {"cloud-a": 0, "cloud-b": ROBOTS}) as (url, key):
-        out["cross"] = post_to_dispatched(url, key, posts)
-    return out
+    """POST-to-dispatched on one cloud and with every robot at another, interleaved.
+
+    Both setups run at once and take turns, request by request, so a change
+    in the machine's load (others share it) weighs on both alike.
+    """
+    (workdir / "one").mkdir(exist_ok=True)
+    (workdir / "cross").mkdir(exist_ok=True)
+    results: dict[str, dict[str, Any]] = {
+        name: {"client": [], "server": [], "remote": 0, "sent": 0} for name in ("one", "cross")
+    }
+    with (
+        federation(workdir / "one", {"cloud-a": ROBOTS}) as (one_url, one_key),
+        federation(workdir / "cross", {"cloud-a": 0, "cloud-b": ROBOTS}) as (cross_url, cross_key),
+        _client(one_url, one_key) as one,
+        _client(cross_url, cross_key) as cross,
+    ):
+        for i in range(posts):
+            for name, client in (("one", one), ("cross", cross)):
+                _measure(client, i, results[name])
+    return results
+
+
+@contextlib.contextmanager
+def _client(url: str, key: str) -> Iterator[httpx.Client]:
+    headers = {"Authorization": f"Bearer {key}"}
+    with httpx.Client(base_url=url, headers=headers, timeout=30) as client:
+        yield client
+
+
+def _measure(client: httpx.Client, i: int, into: dict[str, Any]) -> None:
+    """One request: POST, follow its events until dispatched, cancel it (as service.py does)."""
+    started = time.perf_counter()
+    rid = client.post("/v1/requests", json={**TASK, "label": f"bench {i}"}).json()["id"]
+    state = None
+    with client.stream("GET", f"/v1/requests/{rid}/events") as events:
+        for line in events.iter_lines():
+            if line.startswith("data:"):
+                state = json.loads(line[5:])
+                if state["state"] not in ("received", "selecting"):
+                    break
+    elapsed = (time.perf_counter() - started) * 1000
+    into["sent"] += 1
+    assert state is not None
+    if state["state"] in ("dispatched", "underway"):
+        into["client"].append(elapsed)
+        at = {h["state"]: _at(h["at"]) for h in state["history"] if h["kind"] == "state"}
+        into["server"].append((at["dispatched"] - at["received"]) * 1000)
+        into["remote"] += any(a["cloud"] != "cloud-a" for a in state["coalition"])
+        client.post(f"/v1/requests/{rid}/cancel")
 
 
 def loan_lookups(sizes: tuple[int, ...], reps: int) -> list[dict[str, Any]]:
@@ -198,7 +242,8 @@ def run(quick: bool, out: Path) -> SectionReport:
     ]
     notes = [
         f"Cross-cloud: {cross['remote']} of {len(cross['client'])} coalitions came from cloud-b "
-        f"(cloud-a has no robots); one cloud: {one['remote']} of {len(one['client'])}.",
+        f"(cloud-a has no robots); one cloud: {one['remote']} of {len(one['client'])}. "
+        f"Requests sent: {one['sent']} and {cross['sent']}, taking turns.",
         "Each request needs a grabber and a sound sensor (at most 3 robots) and is canceled "
         "once dispatched; robots do not move on their own (--no-churn).",
         "Home.lent_for answers from memory (a dict kept with every loan the home changes): "

@@ -93,16 +93,21 @@ def test_a_lease_lapses_unless_dispatched_and_a_confirm_needs_it_live(
     assert reply.taken == ["b-0"] and "no live lease" in (reply.error or "")
     assert b.store.reservations() == {}
     a.overlay.reserve("cloud-b", Reservation(request_id=rid, robots=["b-0", "b-1", "b-2"]))
-    assert a.overlay.dispatch("cloud-b", Dispatch(robot="b-0", command=go(rid))).ok
+    # A lease stays a lease until the home forwarded its robot's dispatch.
+    reply = a.overlay.confirm("cloud-b", Reservation(request_id=rid, robots=["b-0", "b-2"]))
+    assert reply.taken == ["b-0", "b-2"] and "forwarded no dispatch" in (reply.error or "")
+    for robot in ("b-0", "b-2"):
+        assert a.overlay.dispatch("cloud-b", Dispatch(robot=robot, command=go(rid))).ok
+    assert (
+        a.overlay.confirm("cloud-b", Reservation(request_id=rid, robots=["b-0", "b-2"])).taken == []
+    )
     firm = b.store.loan_of("b-0")
-    assert firm is not None and firm.state == "firm"  # dispatched: firm
-    # A lease never dispatched is made firm by a confirm, while it lives.
-    assert a.overlay.confirm("cloud-b", Reservation(request_id=rid, robots=["b-2"])).taken == []
+    assert firm is not None and firm.state == "firm"
     time.advance(31)
-    # b-1's lease lapsed (never dispatched nor confirmed); b-0 and b-2 are firm.
+    # b-1's lease lapsed (never dispatched); b-0 and b-2 are firm.
     assert b.home.lent_for("b-1") is None and b.home.lent_for("b-0") == rid
     reply = a.overlay.confirm("cloud-b", Reservation(request_id=rid, robots=["b-0", "b-1"]))
-    assert reply.taken == ["b-1"]
+    assert reply.taken == ["b-1"] and "no live lease" in (reply.error or "")
     assert a.overlay.confirm("cloud-b", Reservation(request_id=rid, robots=["b-0"])).taken == []
     b.home.reconcile()  # cloud-a still uses b-0, not b-2
     assert [loan.robot for loan in b.store.loans()] == ["b-0"]

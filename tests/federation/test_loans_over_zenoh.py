@@ -76,7 +76,9 @@ def test_a_thousand_loans_made_and_released(two_clouds: tuple[ZenohOverlay, Home
     for i, (request_id, robot_id) in enumerate(zip(requests, robots, strict=True)):
         lease = Reservation(request_id=request_id, robots=[robot_id])
         assert a.reserve("cloud-b", lease).taken == []
-        if i % 10 == 0:
+        if i % 10 == 0:  # every tenth is dispatched and made firm
+            go = Assign(request_id=request_id, location=[0.0, 0.0], capabilities=["grabber"])
+            assert a.dispatch("cloud-b", Dispatch(robot=robot_id, command=go)).ok
             assert a.confirm("cloud-b", lease).taken == []
     assert len(home.store.loans()) == LOANS
     assert sum(loan.state == "firm" for loan in home.store.loans()) == LOANS // 10

@@ -83,26 +83,19 @@ def test_a_confirm_needs_a_live_lease(backend: Backend, clock: FakeClock) -> Non
     assert held(store) == {"b-1": "cloud-a/req-a1"}
 
 
-def test_a_dispatched_loan_is_firm(backend: Backend, clock: FakeClock) -> None:
+def test_a_firm_loan_no_longer_lapses(backend: Backend, clock: FakeClock) -> None:
     store = backend.open(clock)
-    assert store.make_firm("cloud-a", "req-a1", "b-1", "dispatched") is None
     assert store.lend("cloud-a", "req-a1", ["b-1", "b-2"], 30) == []
-    assert store.make_firm("cloud-c", "req-a1", "b-1", "dispatched") is None
-    firm = store.make_firm("cloud-a", "req-a1", "b-1", "dispatched")
-    assert firm is not None and firm.state == "firm" and firm.expires_at is None
-    assert store.make_firm("cloud-a", "req-a1", "b-1", "dispatched") == firm  # once only
+    assert store.confirm_loans("cloud-a", "req-a1", ["b-1"]) == []
+    firm = store.loan_of("b-1")
     clock.advance(3600)
     assert [loan.robot for loan in store.lapse_loans()] == ["b-2"]
-    loan = store.loan_of("b-1")
-    assert loan is not None
-    assert [(h.state, h.detail, h.kind) for h in loan.history] == [
-        ("leased", "lent to cloud-a", "state"),
-        ("firm", "dispatched", "state"),
+    assert store.confirm_loans("cloud-a", "req-a1", ["b-1"]) == []  # again: nothing changes
+    assert store.loan_of("b-1") == firm
+    assert firm is not None and [(h.state, h.kind) for h in firm.history] == [
+        ("leased", "state"),
+        ("firm", "state"),
     ]
-    # A confirm of a firm loan changes nothing; a lapsed one is never made firm.
-    assert store.confirm_loans("cloud-a", "req-a1", ["b-1"]) == []
-    assert store.make_firm("cloud-a", "req-a1", "b-2", "dispatched") is None
-    assert store.loan_of("b-1") == loan
 
 
 def test_a_lapsed_lease_ends_whoever_notices(backend: Backend, clock: FakeClock) -> None:

@@ -11,10 +11,10 @@ mutual TLS, the router let only that cloud's certificate send on it), never
 what the payload says. The home enforces the leases:
 
 - a loan starts as a lease the home sets, at most ``lease_max`` seconds
-  whatever the origin asks, kept until the dispatch the home forwards: once
-  the robot accepted it the loan is firm (it no longer lapses). A confirm
-  needs a live loan of the sender's request: it makes firm a lease never
-  dispatched, and is refused without one;
+  whatever the origin asks, and stays a lease until the home forwarded the
+  robot's dispatch (and the robot accepted it); then the origin's confirm
+  makes it firm (it no longer lapses). A confirm without a live lease of the
+  sender's request, or before that dispatch, is refused;
 - a loan ends when its robot reports the task done or failed, when the
   origin releases or cancels it, when its lease lapses, when the origin says
   its request is over or no longer uses the robot (``reconcile``, every few
@@ -156,6 +156,7 @@ class Home:
         self._lent: dict[str, _Lent] = {}
         self._away_since: dict[str, float] = {}  # origin -> when it first did not answer
         self._worked_at: dict[str, float] = {}  # robot -> when last seen working for its loan
+        self._dispatched: set[tuple[str, str]] = set()  # (robot, request): accepted its dispatch
         for loan in store.loans():
             self._remember(loan)
         link.on_state(self._on_state)
@@ -250,10 +251,29 @@ class Home:
         refusal = self._check(origin, "confirm", reservation.robots)
         if refusal:
             return ReserveReply(taken=list(reservation.robots), error=refusal)
-        request_id = reservation.request_id
-        if all(self._firm(robot, origin, request_id) for robot in reservation.robots):
-            return ReserveReply()  # dispatched, so firm already: nothing to write
-        lost = self.store.confirm_loans(origin, request_id, reservation.robots)
+        request_id, robots = reservation.request_id, reservation.robots
+        if all(self._firm(robot, origin, request_id) for robot in robots):
+            return ReserveReply()  # confirmed already: nothing to write
+        lost = [
+            r for r in robots if self._holder(r) != (origin, request_id) or not self.lent_for(r)
+        ]
+        if not lost:
+            states = self.link.states()
+            waiting = [
+                r
+                for r in robots
+                if (r, request_id) not in self._dispatched
+                and not self._firm(r, origin, request_id)
+                and not _working(states.get(r), request_id)  # (dispatched before a restart)
+            ]
+            if waiting:
+                error = (
+                    f"{self.cloud} forwarded no dispatch of {', '.join(waiting)} for request "
+                    f"{request_id}: a lease turns firm only once its robot was dispatched."
+                )
+                self._refuse(origin, "confirm", request_id, waiting, error)
+                return ReserveReply(taken=waiting, error=error)
+            lost = self.store.confirm_loans(origin, request_id, robots)
         if lost:
             error = (
                 f"{self.cloud} has no live lease on {', '.join(lost)} for request {request_id} "
@@ -289,13 +309,11 @@ class Home:
             return Ack.refuse(robot, request_id, error)
         ack = self.link.assign(robot, command)
         if ack.ok:
-            # The robot works for the origin now: the loan is firm, it no longer
-            # lapses. A robot that refused keeps only its lease, which lapses.
-            firm = self.store.make_firm(origin, request_id, robot, "dispatched")
-            if firm is None:  # it lapsed or ended meanwhile: stop the robot again
-                self.link.cancel(robot, request_id)
-                return Ack.refuse(robot, request_id, f"the lease on robot {robot} lapsed.")
-            self._remember(firm)
+            # Now the origin may confirm the lease (firm). Kept in memory, not
+            # written: the origin confirms at once, and the robot's own state
+            # tells the same after a restart of this IaaS.
+            with self._lock:
+                self._dispatched.add((robot, request_id))
         return ack
 
     def cancel(self, origin: str, release: Release) -> Done:
@@ -461,6 +479,8 @@ class Home:
         for loan in ended:
             self._remember(loan)
             self._worked_at.pop(loan.robot, None)
+            with self._lock:
+                self._dispatched.discard((loan.robot, loan.request_id))
 
     def _on_state(self, state: State) -> None:
         """A lent robot finished its task: the loan ends and the robot is this cloud's again."""

@@ -317,21 +317,6 @@ class MemoryRequestStore:
                     self._holds[robot] = _Hold(None, None, loan.id)
             return []
 
-    def make_firm(self, origin: str, request_id: str, robot_id: str, why: str) -> Loan | None:
-        robots = rules.check_robots([robot_id])
-        rules.check_why(why)
-        with self._lock:
-            now = self._clock()
-            self._drop_expired(robots, now)
-            loan_id = self._lent.get((origin, request_id), {}).get(robot_id)
-            if loan_id is None:
-                return None
-            loan = self._loans[loan_id]
-            if loan.state == "leased":
-                loan = self._change(loan, now, state="firm", expires_at=None, detail=why)
-                self._holds[robot_id] = _Hold(None, None, loan.id)
-            return replace(loan, history=())
-
     def end_loans(
         self,
         origin: str,

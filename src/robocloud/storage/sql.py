@@ -23,7 +23,6 @@ import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import AbstractContextManager, contextmanager, nullcontext
-from dataclasses import replace
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, TypeVar
@@ -470,23 +469,6 @@ class SqlRequestStore:
                 return lost
             self._make_firm(conn, [row for row in mine.values()], now, "confirmed")
             return []
-
-        return self._run(work, write=True)
-
-    def make_firm(self, origin: str, request_id: str, robot_id: str, why: str) -> Loan | None:
-        robots = rules.check_robots([robot_id])
-        rules.check_why(why)
-
-        def work(conn: Connection) -> Loan | None:
-            now = self._clock()
-            row = self._lent(conn, origin, request_id, robots, now).get(robot_id)
-            if row is None:
-                return None
-            self._make_firm(conn, [row], now, why)
-            loan = _loan(row)
-            if loan.state == "firm":
-                return loan
-            return replace(loan, state="firm", expires_at=None, updated_at=now)
 
         return self._run(work, write=True)
 

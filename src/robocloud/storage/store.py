@@ -182,15 +182,6 @@ class RequestStore(Protocol):
         """
         ...
 
-    def make_firm(self, origin: str, request_id: str, robot_id: str, why: str) -> Loan | None:
-        """Make the robot's live loan to this origin request firm (it no longer lapses).
-
-        The home does so once the robot accepted the dispatch it forwarded.
-        Returns the loan (without its history), or None when the robot has no
-        live loan to this origin request (nothing changes then).
-        """
-        ...
-
     def end_loans(
         self,
         origin: str,

@@ -36,7 +36,7 @@ import time
 from collections import defaultdict
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
-from datetime import datetime
+from datetime import datetime, timedelta
 from typing import Protocol
 
 from robocloud.domain import is_final
@@ -244,7 +244,7 @@ class Home:
         lease = min(reservation.lease_seconds or self.lease_max, self.lease_max)
         taken = self.store.lend(origin, reservation.request_id, reservation.robots, lease)
         if not taken:
-            self._refresh(origin, reservation.request_id)
+            self._lent_now(origin, reservation.request_id, reservation.robots, lease)
         return ReserveReply(taken=taken)
 
     def confirm(self, origin: str, reservation: Reservation) -> ReserveReply:
@@ -282,7 +282,7 @@ class Home:
             )
             self._refuse(origin, "confirm", request_id, lost, error)
             return ReserveReply(taken=lost, error=error)
-        self._refresh(origin, request_id)
+        self._lent_now(origin, request_id, robots, None)
         return ReserveReply()
 
     def release(self, origin: str, release: Release) -> Done:
@@ -471,9 +471,33 @@ class Home:
                 loan.state == "firm",
             )
 
-    def _refresh(self, origin: str, request_id: str) -> None:
-        for loan in self.store.loans(origin, request_id):
-            self._remember(loan)
+    def _lent_now(
+        self, origin: str, request_id: str, robots: Iterable[str], lease: float | None
+    ) -> None:
+        """What the store just committed (a lease, or firm with None), without reading it back.
+
+        Stamped with this moment, later than the store's own: a copy of the
+        loan read before the write cannot replace it. A lease's end is
+        reckoned from now too, a little later than the store's: ``lent_for``
+        may say lent a few milliseconds past the lapse, never the reverse
+        for a loan the store still holds.
+        """
+        now = self._clock()
+        with self._lock:
+            for robot in robots:
+                known = self._lent.get(robot)
+                expires_at = None if lease is None else now + timedelta(seconds=lease)
+                if (
+                    lease is not None
+                    and known is not None
+                    and known.active
+                    and (known.origin, known.request_id) == (origin, request_id)
+                ):
+                    if known.firm:
+                        continue  # a firm loan stays firm
+                    if known.expires_at is not None and expires_at is not None:
+                        expires_at = max(expires_at, known.expires_at)
+                self._lent[robot] = _Lent(origin, request_id, expires_at, now, True, lease is None)
 
     def _forget(self, ended: Iterable[Loan]) -> None:
         for loan in ended:

@@ -140,14 +140,60 @@ def _measure(client: httpx.Client, i: int, into: dict[str, Any]) -> None:
 
 
 def loan_lookups(sizes: tuple[int, ...], reps: int) -> list[dict[str, Any]]:
-    """Median µs of the loan lookups with ``size`` loans held, for each size."""
+    """Median µs of the loan lookups with ``size`` loans held, for each size.
+
+    A home per size, all built first; then the sizes take turns, sample by
+    sample, so the machine's changing load weighs on each alike.
+    """
     rng = random.Random(0)
-    return [_lookups_at(size, reps, rng) for size in sizes]
+    with contextlib.ExitStack() as stack:
+        homes = {size: stack.enter_context(_home_with_loans(size)) for size in sizes}
+        samples: dict[int, dict[str, list[float]]] = {
+            size: {"loan_of": [], "lent_for": [], "by_request": [], "release": []}
+            for size in sizes
+        }
+        for _ in range(reps):
+            for size, home in homes.items():
+                i = rng.randrange(size)
+                robot, request_id = f"b-{i:05d}", f"req-{i:05d}"
+                into = samples[size]
+                into["loan_of"].append(_timed(home.store.loan_of, robot))
+                into["lent_for"].append(_timed(home.lent_for, robot))
+                into["by_request"].append(_timed(home.store.loans, "cloud-a", request_id))
+                into["release"].append(_timed(_release, home, request_id))
+                _lend(home, request_id, robot)  # untimed: ``size`` loans stay held
+        for size, home in homes.items():
+            assert len(home.store.loans()) == size
+    return [
+        {"loans": size, **{k: statistics.median(v) for k, v in samples[size].items()}}
+        for size in sizes
+    ]
 
 
-def _lookups_at(size: int, reps: int, rng: random.Random) -> dict[str, Any]:
+def _timed(work: Callable[..., object], *args: Any) -> float:
+    """µs of one call."""
+    started = time.perf_counter()
+    work(*args)
+    return (time.perf_counter() - started) * 1e6
+
+
+def _lend(home: Any, request_id: str, robot: str) -> None:
+    from robocloud.federation.messages import Reservation
+
+    lease = Reservation(request_id=request_id, robots=[robot])
+    assert home.reserve("cloud-a", lease).taken == []
+
+
+def _release(home: Any, request_id: str) -> None:
+    from robocloud.federation.messages import Release
+
+    assert home.release("cloud-a", Release(request_id=request_id)).ok
+
+
+@contextlib.contextmanager
+def _home_with_loans(size: int) -> Iterator[Any]:
+    """cloud-b's Home on a SQLite file, with ``size`` robots each lent to a request of cloud-a."""
     from robocloud.domain import Robot
-    from robocloud.federation.messages import Release, Reservation
     from robocloud.fleet import MemoryRobotLink
     from robocloud.iaas.home import Home
     from robocloud.storage import SqlRequestStore
@@ -162,40 +208,13 @@ def _lookups_at(size: int, reps: int, rng: random.Random) -> dict[str, Any]:
     ]
     with tempfile.TemporaryDirectory() as folder:
         store = SqlRequestStore(f"sqlite:///{Path(folder) / 'cloud-b.db'}")
-        home = Home("cloud-b", store, MemoryRobotLink("cloud-b", robots), lease_max=3600)
-
-        def lend(i: int) -> None:
-            lease = Reservation(request_id=f"req-{i:05d}", robots=[robots[i].id])
-            assert home.reserve("cloud-a", lease).taken == []
-
-        def release(i: int) -> None:
-            assert home.release("cloud-a", Release(request_id=f"req-{i:05d}")).ok
-
-        for i in range(size):
-            lend(i)
-
-        def timed(work: Callable[[int], object], after: Callable[[int], object] | None = None
-                  ) -> float:
-            samples = []
-            for _ in range(reps):
-                i = rng.randrange(size)
-                started = time.perf_counter()
-                work(i)
-                samples.append((time.perf_counter() - started) * 1e6)
-                if after is not None:
-                    after(i)  # untimed: keeps ``size`` loans held
-            return statistics.median(samples)
-
-        row = {
-            "loans": size,
-            "loan_of": timed(lambda i: store.loan_of(robots[i].id)),
-            "lent_for": timed(lambda i: home.lent_for(robots[i].id)),
-            "by_request": timed(lambda i: store.loans("cloud-a", f"req-{i:05d}")),
-            "release": timed(release, after=lend),
-        }
-        assert len(store.loans()) == size
-        store.close()
-    return row
+        try:
+            home = Home("cloud-b", store, MemoryRobotLink("cloud-b", robots), lease_max=3600)
+            for i, robot in enumerate(robots):
+                _lend(home, f"req-{i:05d}", robot.id)
+            yield home
+        finally:
+            store.close()
 
 
 def run(quick: bool, out: Path) -> SectionReport:

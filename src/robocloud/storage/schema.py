@@ -120,6 +120,8 @@ loans = Table(
     Index("ix_loans_origin_request", "origin", "request_id"),
     Index("ix_loans_robot", "robot_id"),
     Index("ix_loans_origin_tell", "origin", "tell_origin"),
+    # The live loans among all the ended ones the table keeps.
+    Index("ix_loans_state", "state"),
 )
 
 loan_history = Table(

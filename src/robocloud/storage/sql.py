@@ -74,6 +74,7 @@ from robocloud.storage.schema import (
 from robocloud.storage.store import StoreUnavailable
 
 T = TypeVar("T")
+_ACTIVE_LOANS = ("leased", "firm")  # as a list, not != released: the state index serves it
 log = logging.getLogger(__name__)
 
 URL_HINT = "use sqlite:///FILE or postgresql+psycopg://USER@HOST:PORT/DATABASE"
@@ -491,7 +492,7 @@ class SqlRequestStore:
                 .where(
                     loans.c.origin == origin,
                     loans.c.request_id == request_id,
-                    loans.c.state != "released",
+                    loans.c.state.in_(_ACTIVE_LOANS),
                 )
                 .order_by(loans.c.id)
                 .with_for_update()
@@ -537,7 +538,7 @@ class SqlRequestStore:
     ) -> builtins.list[Loan]:
         def work(conn: Connection) -> builtins.list[Loan]:
             query = select(loans).where(
-                loans.c.state != "released", _unexpired(loans.c.expires_at, self._clock())
+                loans.c.state.in_(_ACTIVE_LOANS), _unexpired(loans.c.expires_at, self._clock())
             )
             if origin is not None:
                 query = query.where(loans.c.origin == origin)
@@ -821,7 +822,7 @@ class SqlRequestStore:
                 loans.c.origin == origin,
                 loans.c.request_id == request_id,
                 loans.c.robot_id.in_(robots),
-                loans.c.state != "released",
+                loans.c.state.in_(_ACTIVE_LOANS),
                 _unexpired(loans.c.expires_at, now),
             )
             .order_by(loans.c.id)

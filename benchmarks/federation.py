@@ -259,7 +259,12 @@ def run(quick: bool, out: Path) -> SectionReport:
              f"{lookup_ratio:.2f}x (the worst of loan_of, loans by request, release)",
              lookup_ratio <= 1.5, f"{1.5 - lookup_ratio:+.2f}x"),
     ]
+    server_ratio = _median(cross["server"]) / _median(one["server"])
     notes = [
+        f"Server side (received to dispatched in the history): {server_ratio:.2f}x. The "
+        "client waits longer by the confirm at cloud-b (one round trip and one write there), "
+        "which the service sends after the dispatched transition and awaits before it "
+        "publishes the state.",
         f"Cross-cloud: {cross['remote']} of {len(cross['client'])} coalitions came from cloud-b "
         f"(cloud-a has no robots); one cloud: {one['remote']} of {len(one['client'])}. "
         f"Requests sent: {one['sent']} and {cross['sent']}, taking turns.",

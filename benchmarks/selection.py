@@ -48,7 +48,7 @@ from robocloud.selection.exact import prune
 from robocloud.selection.filtering import filter_robots
 from robocloud.selection.pareto import pareto_front
 from robocloud.selection.pipeline import select
-from robocloud.selection.pool import build_pool
+from robocloud.selection.pool import build_pool, seed_covers
 from robocloud.selection.problem import CoalitionProblem
 from robocloud.selection.ranking import rank_candidates
 from robocloud.selection.result import SelectionResult
@@ -84,9 +84,10 @@ def repeats_for(robots: int, quick: bool) -> int:
 # --- measuring ---------------------------------------------------------------
 
 
-def timed(fn: Callable[[], T], repeats: int) -> tuple[list[float], list[T]]:
+def timed(fn: Callable[[], T], repeats: int, warm_up: bool = True) -> tuple[list[float], list[T]]:
     """A warm-up call, then ``repeats`` timed calls: (seconds, result) of each timed call."""
-    fn()
+    if warm_up:
+        fn()
     seconds, results = [], []
     for _ in range(repeats):
         gc.collect()
@@ -170,7 +171,9 @@ def peer_select(robots: Sequence[Robot], task: Task) -> PeerResult:
     problem = CoalitionProblem.build(candidates, task)
     order, _ = rank_candidates(problem, task.priority)
     survivors = prune(problem)
-    members = build_pool(problem, order, task.max_robots, survivors)
+    # The pool MOPSO searches: the best ranked, the witness and the seed covers' robots.
+    members = build_pool(problem, order, task.max_robots, survivors,
+                         extra=seed_covers(problem, survivors))
     sub = problem.subproblem(members)
     started = time.perf_counter()
     front: list[Coalition] = []
@@ -245,7 +248,9 @@ def measure(robots_count: int, quick: bool) -> SizeRun:
 
     exact_s, exacts = timed(lambda: select(robots, task, optimizer="exact"), repeats)
     mopso_s, mopsos = timed(lambda: select(robots, task, optimizer="mopso"), repeats)
-    nsga_s, peers = timed(lambda: peer_select(robots, task), repeats)
+    # NSGA-II takes seconds a run: one timed run in a smoke check.
+    nsga_s, peers = timed(lambda: peer_select(robots, task), 1 if quick else repeats,
+                          warm_up=not quick)
     exact, mopso, peer = exacts[-1], mopsos[-1], peers[-1]
     # Every run gives the same answer (fixed seeds); check it rather than assume it.
     deterministic = all(r.pareto == exact.pareto for r in exacts) and all(
@@ -254,7 +259,7 @@ def measure(robots_count: int, quick: bool) -> SizeRun:
 
     exact_mib = peak_mib(lambda: select(robots, task, optimizer="exact"))
     mopso_mib = peak_mib(lambda: select(robots, task, optimizer="mopso"))
-    nsga_mib = peak_mib(lambda: peer_select(robots, task))
+    nsga_mib = None if quick else peak_mib(lambda: peer_select(robots, task))
 
     hv_exact = hypervolume(exact.pareto, task)
     hv_mopso = hypervolume(mopso.pareto, task)
@@ -462,6 +467,204 @@ def plot_thesis(run: SizeRun, path: Path) -> None:
     plt.close(fig)
 
 
+
+# --- the sweep: coalition size by fleet size ----------------------------------------
+
+SWEEP_NEEDED = (5, 10, 20, 30, 50, 60)
+SWEEP_FLEETS = (1_000, 10_000, 100_000)
+QUICK_NEEDED = (5, 20)
+QUICK_FLEETS = (1_000,)
+SWEEP_MAX_TIME = 3600.0  # s: every candidate can reach the fire, so 60 of 100 can serve
+SWEEP_MAX_COST = 1e6
+# NSGA-II runs where its whole pipeline is expected under this (s per run, measured in
+# the warm-up); above it the cell says "skipped" rather than spend minutes.
+NSGA2_MAX_S = 20.0
+GOAL_SIZE_NEEDED = 60
+GOAL_SIZE_FLEET = 100_000  # 10,000 candidates
+GOAL_SIZE_S = 1.0
+
+
+def sweep_counts(needed: int) -> dict[str, int]:
+    """Counts whose smallest coalition has ``needed`` robots.
+
+    Every robot of the scenario brings exactly one of grabber and kicker, so
+    a coalition holds at least grabber + kicker robots; the sensors ride on
+    them (about a quarter each).
+    """
+    grabbers = -(-needed // 2)
+    sensors = max(1, needed // 4)
+    return {"grabber": grabbers, "kicker": needed - grabbers, "light": sensors,
+            "ultrasonic": sensors}
+
+
+def sweep_task(base: Task, needed: int) -> Task:
+    counts = sweep_counts(needed)
+    data = base.model_dump()
+    data.update(
+        sensing={"light": counts["light"], "ultrasonic": counts["ultrasonic"]},
+        actuating={"grabber": counts["grabber"], "kicker": counts["kicker"]},
+        max_robots=needed + 10,
+        max_cost=SWEEP_MAX_COST,
+        max_time=SWEEP_MAX_TIME,
+    )
+    return Task.model_validate(data)
+
+
+def relative_hypervolumes(fronts: dict[str, Sequence[Coalition]]) -> dict[str, float | None]:
+    """Each front's HV as a share of the exact front's, in a box shared by all of them.
+
+    The objectives are scaled to [0, 1] between the best and worst value any
+    front reaches, and the reference point sits 10% beyond the worst (N: one
+    robot beyond): the sweep's max_cost is no limit, so the task's thresholds
+    would squash every front into a corner.
+    """
+    from pymoo.indicators.hv import HV
+
+    points = [np.array([[c.time, c.cost, float(c.size)] for c in f]) for f in fronts.values() if f]
+    if not fronts.get("exact"):
+        return {name: None for name in fronts}
+    union = np.vstack(points)
+    low = union.min(axis=0)
+    span = union.max(axis=0) - low
+    span = np.where(span > 0, span, 1.0)
+    reference = np.array([1.1, 1.1, 1.0 + 1.0 / span[2]])
+    hv = HV(ref_point=reference)
+
+    def volume(front: Sequence[Coalition]) -> float:
+        if not front:
+            return 0.0
+        values = np.array([[c.time, c.cost, float(c.size)] for c in front])
+        return float(hv.do((values - low) / span))
+
+    exact = volume(fronts["exact"])
+    return {name: (volume(f) / exact if exact > 0 else None) for name, f in fronts.items()}
+
+
+def measure_cell(robots: Sequence[Robot], base: Task, fleet: int, needed: int,
+                 quick: bool) -> Row:
+    task = sweep_task(base, needed)
+    repeats = 1 if quick else (3 if fleet <= 10_000 else 2)
+    load_now = " ".join(f"{v:.2f}" for v in os.getloadavg())
+    exact_s, exacts = timed(lambda: select(robots, task, optimizer="exact"), repeats)
+    mopso_s, mopsos = timed(lambda: select(robots, task, optimizer="mopso"), repeats)
+    exact, mopso = exacts[-1], mopsos[-1]
+    started = time.perf_counter()
+    peer: PeerResult | None = peer_select(robots, task)
+    warm = time.perf_counter() - started
+    nsga_s: list[float] = []
+    if quick:
+        nsga_s = [warm]  # a smoke check: the one run, no memory measurement
+    elif warm <= NSGA2_MAX_S:
+        nsga_s, peers = timed(lambda: peer_select(robots, task), max(1, repeats - 1))
+        peer = peers[-1]
+    exact_mib = peak_mib(lambda: select(robots, task, optimizer="exact"))
+    mopso_mib = peak_mib(lambda: select(robots, task, optimizer="mopso"))
+    nsga_mib = peak_mib(lambda: peer_select(robots, task)) if nsga_s and not quick else None
+    fronts: dict[str, Sequence[Coalition]] = {"exact": exact.pareto, "mopso": mopso.pareto}
+    if nsga_s and peer is not None:
+        fronts["nsga2"] = peer.pareto
+    hv = relative_hypervolumes(fronts)
+    exact_set = set(exact.pareto)
+    return {
+        "robots": fleet,
+        "needed": needed,
+        "counts": " ".join(f"{k}x{v}" for k, v in task.required.items()),
+        "candidates": exact.candidates,
+        "repeats": repeats,
+        "load_average": load_now,
+        "exact_median_ms": _ms(exact_s),
+        "exact_peak_mib": exact_mib,
+        "exact_complete": exact.complete,
+        "exact_front": len(exact.pareto),
+        "mopso_median_ms": _ms(mopso_s),
+        "mopso_peak_mib": mopso_mib,
+        "mopso_front": len(mopso.pareto),
+        "mopso_exact_points": len(exact_set & set(mopso.pareto)),
+        "mopso_pool": len(mopso.pool),
+        "hv_ratio_mopso": hv.get("mopso"),
+        "nsga2_median_ms": _ms(nsga_s) if nsga_s else None,
+        "nsga2_peak_mib": nsga_mib,
+        "nsga2_front": len(peer.pareto) if nsga_s and peer is not None else None,
+        "hv_ratio_nsga2": hv.get("nsga2"),
+        "nsga2_note": "" if nsga_s else f"skipped: one run took {warm:.0f} s",
+        "same_choice_mopso": mopso.chosen == exact.chosen,
+    }
+
+
+def sweep(quick: bool) -> list[Row]:
+    rows: list[Row] = []
+    for fleet in QUICK_FLEETS if quick else SWEEP_FLEETS:
+        robots, base = load(fleet)
+        for needed in QUICK_NEEDED if quick else SWEEP_NEEDED:
+            started = time.perf_counter()
+            rows.append(measure_cell(robots, base, fleet, needed, quick))
+            print(f"  sweep: {fleet:>7,} robots, {needed} needed, measured in "
+                  f"{time.perf_counter() - started:.0f} s", flush=True, file=sys.stderr)
+    return rows
+
+
+def sweep_goals(rows: Sequence[Row]) -> list[Goal]:
+    cell = next((r for r in rows if r["robots"] == GOAL_SIZE_FLEET
+                 and r["needed"] == GOAL_SIZE_NEEDED), None)
+    goal = (f"{GOAL_SIZE_NEEDED} robots among {GOAL_SIZE_FLEET // 10:,} candidates: "
+            f"whole exact select < {GOAL_SIZE_S:g} s, complete")
+    if cell is None:
+        return [Goal(goal, "not run", None, "")]
+    g = _time_goal(goal, cell["exact_median_ms"], GOAL_SIZE_S * 1000)
+    met = bool(g.met) and bool(cell["exact_complete"])
+    return [Goal(goal, f"{g.measured}, complete={cell['exact_complete']}", met, g.margin)]
+
+
+def sweep_tables(rows: Sequence[Row]) -> list[Table]:
+    timing = Table(
+        "Sweep: time (median ms of the whole select) and memory (peak MiB, tracemalloc) "
+        "by fleet and coalition size",
+        [
+            Column("robots", "robots", "{:,}"),
+            Column("candidates", "candidates", "{:,}"),
+            Column("needed", "robots needed"),
+            Column("exact_median_ms", "exact ms", "{:.1f}"),
+            Column("exact_peak_mib", "exact MiB", "{:.2f}"),
+            Column("exact_complete", "exact complete", _f("{}")),
+            Column("mopso_median_ms", "MOPSO ms", "{:.1f}"),
+            Column("mopso_peak_mib", "MOPSO MiB", "{:.2f}"),
+            Column("nsga2_median_ms", "NSGA-II ms", "{:.1f}"),
+            Column("nsga2_peak_mib", "NSGA-II MiB", "{:.2f}"),
+            Column("repeats", "runs"),
+            Column("load_average", "load avg at start"),
+        ],
+        rows,
+        note=("Each cell: wildfire_scenario(robots, 3, seed 1) with the thesis's task made to "
+              "need the given number of robots (counts below), max_robots = needed + 10, "
+              f"max_time {SWEEP_MAX_TIME:g} s, no cost limit; select with its default time "
+              "budget. tracemalloc sees Python and numpy allocations, not HiGHS's own (C++) "
+              "memory, which holds one LP of (robots kept) x (capabilities + classes). "
+              f"NSGA-II is skipped (n/a) where its warm-up run took over {NSGA2_MAX_S:g} s."),
+    )
+    quality = Table(
+        "Sweep: front quality (hypervolume as a share of the exact front's)",
+        [
+            Column("robots", "robots", "{:,}"),
+            Column("needed", "robots needed"),
+            Column("counts", "counts"),
+            Column("exact_front", "front exact"),
+            Column("mopso_front", "front MOPSO"),
+            Column("mopso_exact_points", "MOPSO points on the exact front"),
+            Column("mopso_pool", "MOPSO pool"),
+            Column("hv_ratio_mopso", "HV MOPSO/exact", "{:.4f}"),
+            Column("nsga2_front", "front NSGA-II"),
+            Column("hv_ratio_nsga2", "HV NSGA-II/exact", "{:.4f}"),
+            Column("same_choice_mopso", "MOPSO same choice", _f("{}")),
+            Column("nsga2_note", "NSGA-II"),
+        ],
+        rows,
+        note=("HV: pymoo HV of each front with the objectives scaled between the best and "
+              "worst values any of the three fronts reaches, reference point 10% beyond the "
+              "worst (N: one robot beyond); the ratio is to the exact front's HV."),
+    )
+    return [timing, quality]
+
+
 # --- the section -----------------------------------------------------------------
 
 
@@ -478,6 +681,7 @@ def run(quick: bool, out_dir: Path) -> SectionReport:
         print(f"  {n:>7,} robots measured in {time.perf_counter() - started:.0f} s",
               flush=True, file=sys.stderr)
     rows = [r.row for r in runs]
+    sweep_rows = sweep(quick)
     wider_notes = [note for r in runs if (note := wider_pool_note(r, quick)) is not None]
     figures = []
     thesis = next((r for r in runs if r.row["robots"] == THESIS_SIZE), None)
@@ -564,9 +768,9 @@ def run(quick: bool, out_dir: Path) -> SectionReport:
     return SectionReport(
         name="selection",
         title="Coalition selection: exact and MOPSO against NSGA-II",
-        rows=rows,
-        tables=[timing, quality, chosen],
+        rows=rows + sweep_rows,
+        tables=[timing, quality, chosen, *sweep_tables(sweep_rows)],
         notes=notes,
-        goals=goals(rows),
+        goals=goals(rows) + sweep_goals(sweep_rows),
         figures=figures,
     )

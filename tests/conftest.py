@@ -93,5 +93,3 @@ def postgres_url(postgres_admin: Engine) -> Iterator[str]:
     finally:
         with postgres_admin.connect() as conn:
             conn.execute(text(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)'))
-
-

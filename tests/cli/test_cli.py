@@ -15,7 +15,8 @@ import robocloud
 from robocloud.cli.main import main
 from robocloud.sim.scenario import wildfire_scenario
 
-OUTPUT_KEYS = {"candidates", "ranking", "pareto", "chosen", "reason", "optimizer", "elapsed_ms"}
+OUTPUT_KEYS = {"candidates", "ranking", "pareto", "chosen", "reason", "optimizer", "elapsed_ms",
+               "complete", "bound", "note"}
 
 
 def run(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]:
@@ -48,8 +49,9 @@ def small_scenario() -> dict[str, Any]:
 
 
 def test_scenario_to_stdout(capsys: pytest.CaptureFixture[str]) -> None:
-    code, out, err = run(capsys, "scenario", "wildfire", "--robots", "30", "--clouds", "2",
-                         "--seed", "4")
+    code, out, err = run(
+        capsys, "scenario", "wildfire", "--robots", "30", "--clouds", "2", "--seed", "4"
+    )
     assert code == 0 and err == ""
     assert json.loads(out) == wildfire_scenario(30, 2, 4)
 
@@ -64,8 +66,7 @@ def test_scenario_defaults_to_the_thesis_size(capsys: pytest.CaptureFixture[str]
 
 def test_scenario_to_a_file(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
     target = tmp_path / "fire.json"
-    code, out, err = run(capsys, "scenario", "wildfire", "--robots", "12", "--output",
-                         str(target))
+    code, out, err = run(capsys, "scenario", "wildfire", "--robots", "12", "--output", str(target))
     assert (code, out, err) == (0, "", "")
     assert json.loads(target.read_text()) == wildfire_scenario(12, 3, 0)
 
@@ -80,16 +81,24 @@ def test_scenario_to_a_file(capsys: pytest.CaptureFixture[str], tmp_path: Path) 
         (["--seed", "-1"], "--seed"),
     ],
 )
-def test_scenario_bad_options(capsys: pytest.CaptureFixture[str], argv: list[str],
-                              field: str) -> None:
+def test_scenario_bad_options(
+    capsys: pytest.CaptureFixture[str], argv: list[str], field: str
+) -> None:
     code, out, err = run(capsys, "scenario", "wildfire", *argv)
     assert code == 2 and out == ""
     assert_one_sentence(err, field)
 
 
 def test_scenario_unwritable_output(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
-    code, _, err = run(capsys, "scenario", "wildfire", "--robots", "3", "--output",
-                       str(tmp_path / "no" / "such" / "dir.json"))
+    code, _, err = run(
+        capsys,
+        "scenario",
+        "wildfire",
+        "--robots",
+        "3",
+        "--output",
+        str(tmp_path / "no" / "such" / "dir.json"),
+    )
     assert code == 2
     assert_one_sentence(err, "cannot write")
 
@@ -129,8 +138,9 @@ def test_select_a_directory(capsys: pytest.CaptureFixture[str], tmp_path: Path) 
         ("3", ["JSON object", "a number"]),
     ],
 )
-def test_select_not_a_json_object(capsys: pytest.CaptureFixture[str], tmp_path: Path,
-                                  text: str, words: list[str]) -> None:
+def test_select_not_a_json_object(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path, text: str, words: list[str]
+) -> None:
     code, out, err = run(capsys, "select", write(tmp_path, text))
     assert code == 2 and out == ""
     assert_one_sentence(err, *words)
@@ -147,34 +157,70 @@ BAD_DOCUMENTS = [
     ("missing task", lambda d: d.pop("task"), "robocloud: task is missing."),
     ("unknown top field", lambda d: d.update(extra=1), "robocloud: extra is not a known field."),
     ("robots not a list", lambda d: d.update(robots={"a": 1}), "robocloud: robots: input should"),
-    ("missing field", lambda d: d["robots"][2].pop("battery"),
-     "robocloud: robots[2].battery is missing."),
-    ("wrong type", lambda d: d["robots"][5].update(speed="fast"),
-     "robocloud: robots[5].speed: input should be a valid number."),
-    ("negative speed", lambda d: d["robots"][3].update(speed=-1.0),
-     "robocloud: robots[3].speed: input should be greater than or equal to 0.001."),
-    ("zero speed", lambda d: d["robots"][3].update(speed=0),
-     "robocloud: robots[3].speed: input should be greater than or equal to 0.001."),
-    ("bad status", lambda d: d["robots"][0].update(status="asleep"),
-     "robocloud: robots[0].status: input should be"),
-    ("bad capability", lambda d: d["robots"][1]["capabilities"].update(x={"kind": "flying"}),
-     "robocloud: robots[1].capabilities.x."),
-    ("unknown priority", lambda d: d["task"].update(priority="urgent"),
-     "robocloud: task.priority: input should be 'balanced', 'time' or 'cost'."),
-    ("task missing field", lambda d: d["task"].pop("max_cost"),
-     "robocloud: task.max_cost is missing."),
-    ("task requires nothing", lambda d: d["task"].update(sensing={}, actuating={}),
-     "robocloud: task: a task must require"),
-    ("duplicate id", lambda d: d["robots"][7].update(id=d["robots"][2]["id"]),
-     "robocloud: robots[7].id: 'a-0003' is already the id of robots[2]."),
+    (
+        "missing field",
+        lambda d: d["robots"][2].pop("battery"),
+        "robocloud: robots[2].battery is missing.",
+    ),
+    (
+        "wrong type",
+        lambda d: d["robots"][5].update(speed="fast"),
+        "robocloud: robots[5].speed: input should be a valid number.",
+    ),
+    (
+        "negative speed",
+        lambda d: d["robots"][3].update(speed=-1.0),
+        "robocloud: robots[3].speed: input should be greater than or equal to 0.001.",
+    ),
+    (
+        "zero speed",
+        lambda d: d["robots"][3].update(speed=0),
+        "robocloud: robots[3].speed: input should be greater than or equal to 0.001.",
+    ),
+    (
+        "bad status",
+        lambda d: d["robots"][0].update(status="asleep"),
+        "robocloud: robots[0].status: input should be",
+    ),
+    (
+        "bad capability",
+        lambda d: d["robots"][1]["capabilities"].update(x={"kind": "flying"}),
+        "robocloud: robots[1].capabilities.x.",
+    ),
+    (
+        "unknown priority",
+        lambda d: d["task"].update(priority="urgent"),
+        "robocloud: task.priority: input should be 'balanced', 'time' or 'cost'.",
+    ),
+    (
+        "task missing field",
+        lambda d: d["task"].pop("max_cost"),
+        "robocloud: task.max_cost is missing.",
+    ),
+    (
+        "task requires nothing",
+        lambda d: d["task"].update(sensing={}, actuating={}),
+        "robocloud: task: a task must require",
+    ),
+    (
+        "duplicate id",
+        lambda d: d["robots"][7].update(id=d["robots"][2]["id"]),
+        "robocloud: robots[7].id: 'a-0003' is already the id of robots[2].",
+    ),
 ]
 
 
-@pytest.mark.parametrize(("label", "change", "expected"), BAD_DOCUMENTS,
-                         ids=[b[0] for b in BAD_DOCUMENTS])
-def test_select_bad_document(capsys: pytest.CaptureFixture[str], tmp_path: Path,
-                             small_scenario: dict[str, Any], label: str, change: Any,
-                             expected: str) -> None:
+@pytest.mark.parametrize(
+    ("label", "change", "expected"), BAD_DOCUMENTS, ids=[b[0] for b in BAD_DOCUMENTS]
+)
+def test_select_bad_document(
+    capsys: pytest.CaptureFixture[str],
+    tmp_path: Path,
+    small_scenario: dict[str, Any],
+    label: str,
+    change: Any,
+    expected: str,
+) -> None:
     code, out, err = run(capsys, "select", write(tmp_path, mutated(small_scenario, change)))
     assert code == 2, label
     assert out == ""
@@ -183,15 +229,21 @@ def test_select_bad_document(capsys: pytest.CaptureFixture[str], tmp_path: Path,
 
 
 @pytest.mark.parametrize(("option", "value"), [("--seed", "-2"), ("--pool-size", "0")])
-def test_select_bad_options(capsys: pytest.CaptureFixture[str], tmp_path: Path,
-                            small_scenario: dict[str, Any], option: str, value: str) -> None:
+def test_select_bad_options(
+    capsys: pytest.CaptureFixture[str],
+    tmp_path: Path,
+    small_scenario: dict[str, Any],
+    option: str,
+    value: str,
+) -> None:
     code, out, err = run(capsys, "select", write(tmp_path, small_scenario), option, value)
     assert code == 2 and out == ""
     assert_one_sentence(err, option)
 
 
-def test_select_bad_stdin(capsys: pytest.CaptureFixture[str],
-                          monkeypatch: pytest.MonkeyPatch) -> None:
+def test_select_bad_stdin(
+    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
     monkeypatch.setattr(sys, "stdin", io.StringIO("oops"))
     code, out, err = run(capsys, "select", "-")
     assert code == 2 and out == ""
@@ -220,8 +272,9 @@ def test_select_the_thesis_scenario(capsys: pytest.CaptureFixture[str], tmp_path
 def test_select_from_stdin_with_options(capsys: pytest.CaptureFixture[str],
                                         monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(sys, "stdin", io.StringIO(json.dumps(wildfire_scenario(300, 2, 1))))
-    code, out, err = run(capsys, "select", "-", "--optimizer", "mopso", "--seed", "3",
-                         "--pool-size", "20")
+    code, out, err = run(
+        capsys, "select", "-", "--optimizer", "mopso", "--seed", "3", "--pool-size", "20"
+    )
     assert code == 0 and err == ""
     result = json.loads(out)
     assert set(result) == OUTPUT_KEYS
@@ -246,16 +299,22 @@ def test_select_nothing_feasible_still_exits_0(capsys: pytest.CaptureFixture[str
 def robocloud_process(*argv: str, stdin: str = "") -> subprocess.CompletedProcess[str]:
     # The package under test, whether installed or only on the test's path.
     source = str(Path(robocloud.__file__).resolve().parent.parent)
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join(
-        p for p in (source, os.environ.get("PYTHONPATH", "")) if p)}
+    env = {
+        **os.environ,
+        "PYTHONPATH": os.pathsep.join(p for p in (source, os.environ.get("PYTHONPATH", "")) if p),
+    }
     return subprocess.run(
         [sys.executable, "-m", "robocloud.cli.main", *argv],
-        input=stdin, capture_output=True, text=True, env=env, timeout=60, check=False,
+        input=stdin,
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=60,
+        check=False,
     )
 
 
-def test_process_bad_input_is_one_sentence(tmp_path: Path,
-                                           small_scenario: dict[str, Any]) -> None:
+def test_process_bad_input_is_one_sentence(tmp_path: Path, small_scenario: dict[str, Any]) -> None:
     document = mutated(small_scenario, lambda d: d["robots"][3].update(speed=-1.0))
     done = robocloud_process("select", write(tmp_path, document))
     assert done.returncode == 2

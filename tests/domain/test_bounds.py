@@ -51,8 +51,14 @@ def test_an_absurd_task_is_refused_naming_the_field(change: dict[str, object], f
 
 def test_the_bounds_themselves_are_accepted() -> None:
     task = Task.model_validate(
-        {**TASK, "location": [1e7, -1e7], "max_cost": 1e12, "max_time": 1e9,
-         "actuating": {"grabber": 1000}, "max_robots": 100_000}
+        {
+            **TASK,
+            "location": [1e7, -1e7],
+            "max_cost": 1e12,
+            "max_time": 1e9,
+            "actuating": {"grabber": 1000},
+            "max_robots": 100_000,
+        }
     )
     assert task.required == {"grabber": 1000}
 
@@ -79,9 +85,18 @@ def test_an_absurd_robot_is_refused_naming_the_field(change: dict[str, object], 
 
 def test_a_state_keeps_its_last_finished_task() -> None:
     state = State.model_validate(
-        {**ROBOT, "kind": "tribot", "seq": 1, "sent_at": 0.0,
-         "last_task": {"request_id": "req-x", "phase": "done", "progress": 1.0,
-                       "capabilities": ["grabber"]}}
+        {
+            **ROBOT,
+            "kind": "tribot",
+            "seq": 1,
+            "sent_at": 0.0,
+            "last_task": {
+                "request_id": "req-x",
+                "phase": "done",
+                "progress": 1.0,
+                "capabilities": ["grabber"],
+            },
+        }
     )
     assert state.last_task is not None and state.last_task.request_id == "req-x"
     plain = State.model_validate({**ROBOT, "kind": "tribot", "seq": 1, "sent_at": 0.0})

@@ -1,8 +1,9 @@
 """Security between clouds, with real Zenoh routers on loopback.
 
 Mutual TLS with certificates of one CA, Zenoh user-password credentials, and
-the access control that lets only trusted clouds send commands for a cloud's
-robots (recognised by their certificate, whatever ``origin`` they claim).
+the access control that lets each trusted cloud send commands for a cloud's
+robots only on the keys that name it (recognised by its certificate), so the
+sender a home reads from the key is the cloud that sent it.
 """
 
 from __future__ import annotations
@@ -20,19 +21,23 @@ import pytest
 import zenoh
 
 from robocloud.errors import InvalidInput
+from robocloud.federation import keys
+from robocloud.federation.keys import CLOUDS_TOKEN
 from robocloud.federation.messages import (
-    CLOUDS_TOKEN,
     CloudInfo,
     Dispatch,
     Done,
     FleetReply,
     IdleQuery,
     IdleReply,
+    LoanQuery,
+    LoanReply,
     Release,
     RequestStatus,
     Reservation,
     ReserveReply,
     StatusQuery,
+    StatusReply,
 )
 from robocloud.federation.overlay import Unreachable, ZenohOverlay
 from robocloud.federation.security import (
@@ -236,19 +241,50 @@ def test_access_control_is_off_without_a_way_to_know_peers(pki: Pki) -> None:
     assert "access_control" not in pki.security("cloud-b-robots").config_entries("client")
 
 
-def test_the_rules_name_the_overlays_keys() -> None:
-    acl = access_control("cloud-b", ["cloud-a"])
+def test_each_trusted_cloud_gets_only_the_command_keys_that_name_it() -> None:
+    acl = access_control("cloud-b", ["cloud-c", "cloud-a"])
     rules = {rule["id"]: rule for rule in acl["rules"]}
-    assert rules["commands"]["key_exprs"] == [f"robocloud/cloud-b/{c}" for c in COMMANDS]
+    for name in ("cloud-a", "cloud-c"):
+        assert rules[f"commands-from-{name}"]["key_exprs"] == [
+            f"robocloud/cloud-b/from/{name}/{c}" for c in COMMANDS
+        ]
+        assert {"id": f"cloud-{name}", "cert_common_names": [name]} in acl["subjects"]
+        assert {
+            "id": f"trusted-{name}",
+            "subjects": [f"cloud-{name}"],
+            "rules": [f"commands-from-{name}"],
+        } in acl["policies"]
     assert rules["answer"]["key_exprs"] == [f"robocloud/*/{q}" for q in QUESTIONS]
-    assert {"id": "trusted", "cert_common_names": ["cloud-a"]} in acl["subjects"]
-    everyone = access_control("cloud-b", [])
-    assert "commands" in everyone["policies"][0]["rules"]
-    # A router knows the user name only of peers that connected to it: by
-    # user name, commands stay open to every peer let in (origin checked by Home).
-    by_user = access_control("cloud-b", ["cloud-a"], by_certificate=False)
-    assert "commands" in by_user["policies"][0]["rules"]
+    assert acl["policies"][0]["rules"] == ["messages", "ask", "answer"]  # anyone: no command
     assert json.loads(json.dumps(acl)) == acl
+    # A router knows the user name only of peers that connected to it: by
+    # user name, commands stay open to every peer let in (docs/security.md).
+    by_user = access_control("cloud-b", [], by_certificate=False)
+    assert "commands" in by_user["policies"][0]["rules"]
+    assert {r["id"]: r for r in by_user["rules"]}["commands"]["key_exprs"] == [
+        f"robocloud/cloud-b/from/*/{c}" for c in COMMANDS
+    ]
+
+
+def test_with_certificates_a_router_must_trust_someone(pki: Pki) -> None:
+    """An empty --trust would give the command keys to every member, robots included."""
+    with pytest.raises(InvalidInput, match="name them with --trust CLOUD"):
+        pki.security("cloud-b").for_cloud("cloud-b", [])
+    with pytest.raises(InvalidInput, match="cannot be used in a Zenoh key"):
+        pki.security("cloud-b").for_cloud("cloud-b", ["cloud/*"])
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--cloud")
+    parser.add_argument("--trust", action="append", default=[])
+    add_arguments(parser, router=True)
+    flags = [
+        "--cloud", "cloud-b",
+        "--tls-ca", str(pki.dir / "ca.pem"),
+        "--tls-cert", str(pki.dir / "cloud-b.pem"),
+        "--tls-key", str(pki.dir / "cloud-b.key"),
+    ]  # fmt: skip
+    with pytest.raises(InvalidInput, match="trusts none"):
+        from_arguments(parser.parse_args(flags))
+    assert from_arguments(parser.parse_args([*flags, "--trust", "cloud-a"])) is not None
 
 
 def test_make_certs_cli_writes_a_ca_and_private_keys(tmp_path: Path) -> None:
@@ -332,14 +368,14 @@ def test_with_credentials_only_commands_stay_open_but_robots_closed(
     b_security = OverlaySecurity(user="cloud-b", password="pb", credentials=users)
     b = sessions(open_router([b_endpoint], security=b_security.for_cloud("cloud-b", ["cloud-a"])))
     kept = [
-        answer(b, "robocloud/cloud-b/dispatch", "dispatched"),
+        answer(b, "robocloud/cloud-b/from/*/dispatch", "dispatched"),
         answer(b, "robocloud/cloud-b/robots/b-1/cmd", "ack"),
     ]
     c_security = OverlaySecurity(user="cloud-c", password="pc", credentials=users)
     c = sessions(open_router([free_endpoint()], [b_endpoint], security=c_security))
     # Users are known only to the router they connect to: --trust cannot be
     # enforced by Zenoh here, so the command keys stay open to every login.
-    assert ask_until(c, "robocloud/cloud-b/dispatch") == ["dispatched"]
+    assert ask_until(c, "robocloud/cloud-b/from/cloud-c/dispatch") == ["dispatched"]
     assert ask(c, "robocloud/cloud-b/robots/b-1/cmd") == []
     for queryable in kept:
         queryable.undeclare()  # type: ignore[no-untyped-call]
@@ -350,7 +386,7 @@ def test_with_credentials_only_commands_stay_open_but_robots_closed(
 
 @dataclass
 class Desk:
-    """A HomeDesk that answers everything and records the commands it gets."""
+    """A HomeDesk that answers everything and records the commands it gets, with their sender."""
 
     cloud: str
     commands: list[tuple[str, str]] = field(default_factory=list)
@@ -369,28 +405,34 @@ class Desk:
     def fleet(self) -> FleetReply:
         return FleetReply(cloud=self.cloud, robots=[])
 
-    def reserve(self, reservation: Reservation) -> ReserveReply:
-        self._got("reserve", reservation.origin)
+    def status(self, query: StatusQuery) -> StatusReply:
+        return StatusReply(
+            requests=[RequestStatus(request_id=r, known=False) for r in query.request_ids]
+        )
+
+    def reserve(self, origin: str, reservation: Reservation) -> ReserveReply:
+        self._got("reserve", origin)
         return ReserveReply()
 
-    def confirm(self, reservation: Reservation) -> ReserveReply:
-        self._got("confirm", reservation.origin)
+    def confirm(self, origin: str, reservation: Reservation) -> ReserveReply:
+        self._got("confirm", origin)
         return ReserveReply()
 
-    def release(self, release: Release) -> Done:
-        self._got("release", release.origin)
+    def release(self, origin: str, release: Release) -> Done:
+        self._got("release", origin)
         return Done()
 
-    def dispatch(self, dispatch: Dispatch) -> Ack:
-        self._got("dispatch", dispatch.origin)
+    def dispatch(self, origin: str, dispatch: Dispatch) -> Ack:
+        self._got("dispatch", origin)
         return Ack(ok=True, robot=dispatch.robot, request_id=dispatch.command.request_id)
 
-    def cancel(self, release: Release) -> Done:
-        self._got("cancel", release.origin)
+    def cancel(self, origin: str, release: Release) -> Done:
+        self._got("cancel", origin)
         return Done()
 
-    def status(self, query: StatusQuery) -> RequestStatus:
-        return RequestStatus(request_id=query.request_id, known=False)
+    def loans(self, origin: str, query: LoanQuery) -> LoanReply:
+        self._got("loans", origin)
+        return LoanReply(cloud=self.cloud)
 
 
 GO = Assign(request_id="r-1", location=[1.0, 2.0], capabilities=["grabber"])
@@ -408,9 +450,13 @@ class Federation:
 def federation(
     pki: Pki, sessions: Callable[[zenoh.Session], zenoh.Session]
 ) -> Iterator[Federation]:
-    """Three clouds in a full mesh with mutual TLS; cloud-b trusts only cloud-a."""
+    """Three clouds in a full mesh with mutual TLS: b trusts a and c; c trusts only a."""
     endpoints = {name: free_endpoint() for name in ("cloud-a", "cloud-b", "cloud-c")}
-    trust: dict[str, list[str]] = {"cloud-a": [], "cloud-b": ["cloud-a"], "cloud-c": []}
+    trust: dict[str, list[str]] = {
+        "cloud-a": ["cloud-b", "cloud-c"],
+        "cloud-b": ["cloud-a", "cloud-c"],
+        "cloud-c": ["cloud-a"],
+    }
     routers: dict[str, zenoh.Session] = {}
     for name, endpoint in endpoints.items():
         security = pki.security(name).for_cloud(name, trust[name])
@@ -429,24 +475,58 @@ def federation(
         overlay.close()
 
 
-def test_only_trusted_clouds_command_a_clouds_robots(federation: Federation) -> None:
+def test_the_sender_is_the_one_the_key_names(federation: Federation) -> None:
     desks = federation.desks
     a, c = federation.overlays["cloud-a"], federation.overlays["cloud-c"]
-    assert a.dispatch("cloud-b", Dispatch(origin="cloud-a", robot="b-1", command=GO)).ok
-    assert a.reserve("cloud-b", Reservation(origin="cloud-a", request_id="r-1", robots=["b-1"]))
-    # cloud-c reaches cloud-b (questions are open) and claims to be cloud-a
-    # in a command: the claim never reaches cloud-b.
-    assert "cloud-b" in c.gather_idle(IdleQuery(origin="cloud-c")).replies
-    refused = c.dispatch("cloud-b", Dispatch(origin="cloud-a", robot="b-1", command=GO))
+    assert a.dispatch("cloud-b", Dispatch(robot="b-1", command=GO)).ok
+    assert a.reserve("cloud-b", Reservation(request_id="r-1", robots=["b-1"])).taken == []
+    # A payload that claims another origin changes nothing: the key decides.
+    claim = json.dumps({"origin": "cloud-a", "request_id": "r-1", "robots": ["b-1"]})
+    assert (
+        len(
+            ask(federation.routers["cloud-c"], keys.command("cloud-b", "cloud-c", "release"), claim)
+        )
+        == 1
+    )
+    assert desks["cloud-b"].commands == [
+        ("dispatch", "cloud-a"),
+        ("reserve", "cloud-a"),
+        ("release", "cloud-c"),
+    ]
+    assert c.loans("cloud-b", LoanQuery()).cloud == "cloud-b"
+    assert desks["cloud-b"].commands[-1] == ("loans", "cloud-c")
+
+
+def test_a_cloud_cannot_send_as_another(federation: Federation) -> None:
+    """cloud-c, trusted by cloud-b, sends on the keys that name cloud-a: the router drops them."""
+    c_router, desks = federation.routers["cloud-c"], federation.desks
+    payloads = {
+        "reserve": Reservation(request_id="r-1", robots=["b-1"]).model_dump_json(),
+        "confirm": Reservation(request_id="r-1", robots=["b-1"]).model_dump_json(),
+        "release": Release(request_id="r-1").model_dump_json(),
+        "cancel": Release(request_id="r-1").model_dump_json(),
+        "dispatch": Dispatch(robot="b-1", command=GO).model_dump_json(),
+        "loans": LoanQuery().model_dump_json(),
+    }
+    for name, payload in payloads.items():
+        assert ask(c_router, keys.command("cloud-b", "cloud-a", name), payload) == []
+        assert ask(c_router, keys.command("cloud-b", "*", name), payload) == []
+    assert desks["cloud-b"].commands == []
+    # ... while cloud-a's own commands pass.
+    loans = keys.command("cloud-b", "cloud-a", "loans")
+    assert len(ask(federation.routers["cloud-a"], loans, payloads["loans"])) == 1
+    assert desks["cloud-b"].commands == [("loans", "cloud-a")]
+
+
+def test_an_untrusted_cloud_sends_no_command(federation: Federation) -> None:
+    b = federation.overlays["cloud-b"]
+    with pytest.raises(Unreachable):
+        b.reserve("cloud-c", Reservation(request_id="r-1", robots=["c-1"]))
+    refused = b.dispatch("cloud-c", Dispatch(robot="c-1", command=GO))
     assert not refused.ok and "not reachable" in (refused.error or "")
-    with pytest.raises(Unreachable):
-        c.reserve("cloud-b", Reservation(origin="cloud-a", request_id="r-1", robots=["b-1"]))
-    with pytest.raises(Unreachable):
-        c.cancel("cloud-b", Release(origin="cloud-a", request_id="r-1"))
-    assert desks["cloud-b"].commands == [("dispatch", "cloud-a"), ("reserve", "cloud-a")]
-    # cloud-a trusts every cloud of the CA: cloud-c's commands reach it.
-    assert c.release("cloud-a", Release(origin="cloud-c", request_id="r-2")).ok
-    assert desks["cloud-a"].commands == [("release", "cloud-c")]
+    assert federation.desks["cloud-c"].commands == []
+    assert federation.overlays["cloud-a"].release("cloud-c", Release(request_id="r-2")).ok
+    assert federation.desks["cloud-c"].commands == [("release", "cloud-a")]
 
 
 def test_questions_stay_open_to_every_cloud_of_the_ca(federation: Federation) -> None:
@@ -454,7 +534,8 @@ def test_questions_stay_open_to_every_cloud_of_the_ca(federation: Federation) ->
     assert c.clouds() == ["cloud-a", "cloud-b", "cloud-c"]
     assert [info.cloud for info in c.infos()] == ["cloud-a", "cloud-b", "cloud-c"]
     assert sorted(c.gather_idle(IdleQuery(origin="cloud-c")).replies) == ["cloud-a", "cloud-b"]
-    assert not c.status("cloud-b", StatusQuery(home="cloud-c", request_id="r-9")).known
+    status = c.status("cloud-b", StatusQuery(home="cloud-c", request_ids=["r-9"]))
+    assert [s.known for s in status.requests] == [False]
 
 
 def test_wide_queries_and_robot_keys_are_closed_to_other_clouds(
@@ -467,21 +548,22 @@ def test_wide_queries_and_robot_keys_are_closed_to_other_clouds(
     kept = answer(robot, "robocloud/cloud-b/robots/*/cmd", "ack")
     # cloud-b's IaaS (the router's own session) reaches its robots.
     assert ask_until(routers["cloud-b"], "robocloud/cloud-b/robots/b-1/cmd") == ["ack"]
-    payload = Dispatch(origin="cloud-a", robot="b-1", command=GO).model_dump_json()
+    payload = Dispatch(robot="b-1", command=GO).model_dump_json()
     # Keys that include cloud-b's command keys, which a deny rule would miss.
-    for key in ("robocloud/**", "robocloud/cloud-b/*", "robocloud/*/dispatch"):
+    for key in ("robocloud/**", "robocloud/cloud-b/**", "robocloud/*/from/*/dispatch"):
         ask(routers["cloud-c"], key, payload)
-    # Nobody else queries a robot directly, not even a trusted cloud, and the
-    # robots do not send their cloud's commands.
+    # Nobody else queries a robot directly, not even a trusted cloud.
     for name in ("cloud-a", "cloud-c"):
         assert ask(routers[name], "robocloud/cloud-b/robots/b-1/cmd") == []
-    assert ask(robot, "robocloud/cloud-b/dispatch", payload) == []
+    # A robot's certificate sends no cloud command, as any cloud or as itself.
+    for sender in ("cloud-b-robots", "cloud-a", "cloud-b", "*"):
+        assert ask(robot, keys.command("cloud-b", sender, "dispatch"), payload) == []
     assert desks["cloud-b"].commands == []
     # cloud-b's own tools, with its certificate, may ask anything of it.
     tool = sessions(
         open_client([federation.endpoints["cloud-b"]], security=pki.security("cloud-b"))
     )
     assert ask_until(tool, "robocloud/cloud-b/robots/b-1/cmd") == ["ack"]
-    assert len(ask(tool, "robocloud/cloud-b/dispatch", payload)) == 1
+    assert len(ask(tool, keys.command("cloud-b", "cloud-a", "dispatch"), payload)) == 1
     assert desks["cloud-b"].commands == [("dispatch", "cloud-a")]
     kept.undeclare()  # type: ignore[no-untyped-call]

@@ -26,8 +26,12 @@ def state_json(**changes: object) -> dict[str, object]:
         "status": "busy",
         "travel_cost_per_m": 0.05,
         "capabilities": {"grabber": {"kind": "actuating", "time": 90.0, "cost": 8.0}},
-        "task": {"request_id": "r-17", "phase": "travel", "progress": 0.25,
-                 "capabilities": ["grabber"]},
+        "task": {
+            "request_id": "r-17",
+            "phase": "travel",
+            "progress": 0.25,
+            "capabilities": ["grabber"],
+        },
         "seq": 1042,
         "sent_at": 1767225600.25,
     }
@@ -50,8 +54,11 @@ def test_state_ignores_unknown_fields_and_rejects_bad_values() -> None:
     with pytest.raises(pydantic.ValidationError):
         State.model_validate(state_json(battery=101.0))
     with pytest.raises(pydantic.ValidationError):
-        State.model_validate(state_json(task={"request_id": "r", "phase": "nap",
-                                              "progress": 0.0, "capabilities": []}))
+        State.model_validate(
+            state_json(
+                task={"request_id": "r", "phase": "nap", "progress": 0.0, "capabilities": []}
+            )
+        )
 
 
 def test_commands_parse_by_type() -> None:
@@ -59,44 +66,60 @@ def test_commands_parse_by_type() -> None:
         b'{"type": "assign", "request_id": "r-1", "location": [1, 2],'
         b' "capabilities": ["light"], "execution": "sequential"}'
     )
-    assert assign == Assign(request_id="r-1", location=[1.0, 2.0], capabilities=["light"],
-                            execution="sequential")
+    assert assign == Assign(
+        request_id="r-1", location=[1.0, 2.0], capabilities=["light"], execution="sequential"
+    )
     assert COMMAND.validate_json(b'{"type": "cancel", "request_id": "r-1"}') == Cancel(
         request_id="r-1"
     )
     with pytest.raises(pydantic.ValidationError):
         COMMAND.validate_json(b'{"type": "dance", "request_id": "r-1"}')
     with pytest.raises(pydantic.ValidationError):
-        COMMAND.validate_json(b'{"type": "assign", "request_id": "r-1", "location": [1, 2],'
-                              b' "capabilities": []}')
+        COMMAND.validate_json(
+            b'{"type": "assign", "request_id": "r-1", "location": [1, 2], "capabilities": []}'
+        )
     assert json.loads(Cancel(request_id="r").model_dump_json()) == {
-        "type": "cancel", "request_id": "r"
+        "type": "cancel",
+        "request_id": "r",
     }
     assert json.loads(Ack(ok=True, robot="a-1", request_id="r").model_dump_json()) == {
-        "ok": True, "robot": "a-1", "request_id": "r", "error": None
+        "ok": True,
+        "robot": "a-1",
+        "request_id": "r",
+        "error": None,
     }
 
 
 @pytest.mark.parametrize(("execution", "expected"), [("parallel", 90.0), ("sequential", 110.0)])
 def test_work_time_follows_the_execution_mode(execution: str, expected: float) -> None:
     command = Assign.model_validate(
-        {"request_id": "r", "location": [0, 0], "capabilities": ["light", "grabber"],
-         "execution": execution}
+        {
+            "request_id": "r",
+            "location": [0, 0],
+            "capabilities": ["light", "grabber"],
+            "execution": execution,
+        }
     )
     assert command.work_time(CAPS) == expected
 
 
 def test_a_robot_refuses_what_it_cannot_do() -> None:
     def assign(**changes: object) -> Assign:
-        fields: dict[str, object] = {"request_id": "r-2", "location": [100.0, 0.0],
-                                     "capabilities": ["grabber"]}
+        fields: dict[str, object] = {
+            "request_id": "r-2",
+            "location": [100.0, 0.0],
+            "capabilities": ["grabber"],
+        }
         fields.update(changes)
         return Assign.model_validate(fields)
 
-    def refusal(status: str = "idle", current: str | None = None, battery: float = 80.0,
-                command: Assign | None = None) -> str | None:
-        return refuse_assign("a-1", status, current, CAPS, battery, [0.0, 0.0],
-                             command or assign())
+    def refusal(
+        status: str = "idle",
+        current: str | None = None,
+        battery: float = 80.0,
+        command: Assign | None = None,
+    ) -> str | None:
+        return refuse_assign("a-1", status, current, CAPS, battery, [0.0, 0.0], command or assign())
 
     assert refusal() is None
     assert refusal(current="r-2") is None  # the same assign again

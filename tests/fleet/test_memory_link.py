@@ -7,8 +7,13 @@ from robocloud.fleet import Assign, MemoryRobotLink, RobotLink, State
 
 def robot(robot_id: str, x: float = 0.0, **changes: object) -> Robot:
     fields: dict[str, object] = {
-        "id": robot_id, "cloud": "cloud-a", "position": [x, 0.0], "speed": 2.0,
-        "battery": 80.0, "status": "idle", "travel_cost_per_m": 0.05,
+        "id": robot_id,
+        "cloud": "cloud-a",
+        "position": [x, 0.0],
+        "speed": 2.0,
+        "battery": 80.0,
+        "status": "idle",
+        "travel_cost_per_m": 0.05,
         "capabilities": {"grabber": Capability(kind="actuating", time=60.0, cost=8.0)},
     }
     fields.update(changes)

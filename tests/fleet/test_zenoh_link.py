@@ -26,10 +26,18 @@ GO = Assign(request_id="r-1", location=[10.0, 0.0], capabilities=["grabber"])
 
 def state(robot_id: str = "a-0001", seq: int = 1, **changes: object) -> bytes:
     fields: dict[str, object] = {
-        "id": robot_id, "cloud": "cloud-a", "kind": "tribot", "position": [0.0, 0.0],
-        "speed": 1.0, "battery": 90.0, "status": "idle", "travel_cost_per_m": 0.05,
+        "id": robot_id,
+        "cloud": "cloud-a",
+        "kind": "tribot",
+        "position": [0.0, 0.0],
+        "speed": 1.0,
+        "battery": 90.0,
+        "status": "idle",
+        "travel_cost_per_m": 0.05,
         "capabilities": {"grabber": {"kind": "actuating", "time": 60.0, "cost": 8.0}},
-        "task": None, "seq": seq, "sent_at": 1000.0 + seq,
+        "task": None,
+        "seq": seq,
+        "sent_at": 1000.0 + seq,
     }
     fields.update(changes)
     return json.dumps(fields).encode()
@@ -98,8 +106,9 @@ def test_commands_reach_the_robot_and_come_back_as_acks(
         received.append(json.loads(query.payload.to_bytes()))
         key = keys.cmd_key("cloud-b", str(robot_id))
         answers: dict[str, Callable[[], None]] = {
-            "b-ok": lambda: query.reply(key, Ack(ok=True, robot="b-ok",
-                                                  request_id="r-1").model_dump_json()),
+            "b-ok": lambda: query.reply(
+                key, Ack(ok=True, robot="b-ok", request_id="r-1").model_dump_json()
+            ),
             "b-junk": lambda: query.reply(key, b"[1, 2]"),
             "b-err": lambda: query.reply_err(b"overheated"),
             "b-mute": lambda: None,

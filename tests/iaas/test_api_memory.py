@@ -242,3 +242,17 @@ def test_openapi_docs_are_served(client: TestClient) -> None:
     assert client.get("/docs").status_code == 200
     paths = client.get("/openapi.json").json()["paths"]
     assert "/v1/requests/{request_id}/cancel" in paths
+
+
+def test_a_stored_request_that_no_longer_validates_fails_on_restart(
+    fleet: MemoryRobotLink,
+) -> None:
+    store = MemoryRequestStore()
+    old, _ = store.create_request("app-a", {**TASK, "colour": "red"}, None, None)
+    settings = Settings(cloud="cloud-a", api_keys={"key-a": "app-a"})
+    with TestClient(create_app(settings, store=store, link=fleet)) as client:
+        body = client.get(f"/v1/requests/{old.id}", headers=A).json()
+        assert body["state"] == "failed"
+        assert body["reason"].startswith("it could not be resumed after a restart: its stored")
+        assert "colour" in body["reason"]
+        assert post(client).status_code == 202  # the IaaS serves on

@@ -99,7 +99,7 @@ EVENTS: dict[str, tuple[lc.Event, lc.Now]] = {
     "tick": (lc.Tick(), LATER),
     "silence": (lc.Tick(), MUCH_LATER),
     "cancel": (lc.CancelAsked(), NOW),
-    "loan ended": (lc.LoanEnded("a-1", "its home ended the loan"), NOW),
+    "loan ended": (lc.LoanEnded("a-1", "cloud-b", "cloud-a was unreachable"), NOW),
     "crash": (lc.Crashed("boom"), NOW),
 }
 
@@ -116,24 +116,28 @@ TABLE: dict[str, dict[str, tuple[str | None, list[str]]]] = {
         "start": ("selecting", ["Commit", "Select"]),
         "resume": ("selecting", ["ReleaseAll", "Note", "Commit", "Select"]),
         "cancel": ("canceled", ["Commit"]),
+        "loan ended": (None, ["Note"]),
         "crash": ("failed", ["Commit"]),
     },
     "selecting": {
         "selected": (None, ["Reserve"]),
         "none": ("rejected", ["Commit"]),
         "cancel": ("canceled", ["Commit"]),
+        "loan ended": (None, ["Note"]),
         "crash": ("failed", ["Commit"]),
     },
     "reserving": {
         "reserved": (None, ["Follow", "Assign"]),
         "taken": (None, ["Note", "Select"]),
         "cancel": ("canceled", ["Commit"]),
+        "loan ended": (None, ["Note"]),
         "crash": ("failed", ["Commit"]),
     },
     "assigning": {
         "acked": ("dispatched", ["Commit", "Confirm"]),
         "refused": (None, ["StopRobots", "Unfollow", "Release", "Note", "Select"]),
         "cancel": ("canceled", END),
+        "loan ended": (None, ["Note"]),
         "crash": ("failed", END),
     },
     "dispatched": {
@@ -145,7 +149,7 @@ TABLE: dict[str, dict[str, tuple[str | None, list[str]]]] = {
         "last done": ("completed", ["Commit", "Commit", "Release", "Unfollow"]),
         "silence": (None, REPLACE),
         "cancel": ("canceled", END),
-        "loan ended": (None, REPLACE),
+        "loan ended": (None, ["Note", *REPLACE]),
         "crash": ("failed", END),
     },
     "underway": {
@@ -158,7 +162,7 @@ TABLE: dict[str, dict[str, tuple[str | None, list[str]]]] = {
         "other": (None, REPLACE),
         "silence": (None, REPLACE),
         "cancel": ("canceled", END),
-        "loan ended": (None, REPLACE),
+        "loan ended": (None, ["Note", *REPLACE]),
         "crash": ("failed", END),
     },
     "replacing": {
@@ -171,7 +175,7 @@ TABLE: dict[str, dict[str, tuple[str | None, list[str]]]] = {
         "other": (None, FAIL_ONE),
         "silence": (None, FAIL_ONE),
         "cancel": ("canceled", END),
-        "loan ended": (None, FAIL_ONE),
+        "loan ended": (None, ["Note", *FAIL_ONE]),
         "crash": ("failed", END),
     },
     "completed": {},
@@ -230,7 +234,7 @@ def test_a_replacement_asks_for_what_is_missing_within_what_is_left() -> None:
     # 100 wall seconds after dispatch, robots 10 times faster: 1,000 s of robot time
     # would be spent, more than max_time; at 1x, 100 s is spent.
     later = lc.Now(mono=100.0, wall=1100.0)
-    _, effects = lc.decide(life, lc.LoanEnded("a-1", "gone"), later)
+    _, effects = lc.decide(life, lc.LoanEnded("a-1", "cloud-b", "gone"), later)
     select = effects[-1]
     assert isinstance(select, lc.Select)
     assert select.task.required == {"grabber": 1, "light": 1}
@@ -238,9 +242,9 @@ def test_a_replacement_asks_for_what_is_missing_within_what_is_left() -> None:
     assert select.task.max_cost == pytest.approx(100.0)
     assert select.offset == pytest.approx(100.0)
     fast = replace(life, rules=lc.Rules(time_scale=10.0))
-    after, effects = lc.decide(fast, lc.LoanEnded("a-1", "gone"), later)
+    after, effects = lc.decide(fast, lc.LoanEnded("a-1", "cloud-b", "gone"), later)
     assert after.state == "failed"
-    assert "no time is left of max_time 300 s" in str(effects[4])
+    assert "no time is left of max_time 300 s" in str(effects[5])
 
 
 def test_a_replacement_updates_the_coalition_now() -> None:

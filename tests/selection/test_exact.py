@@ -3,8 +3,12 @@ import pytest
 from brute_force import brute_force_front
 from instances import random_problem
 
+from robocloud.domain import Robot, Task
+from robocloud.selection import covering
 from robocloud.selection.choice import choose
+from robocloud.selection.covering import CoverSolver
 from robocloud.selection.exact import cheapest_cover, exact_front, prune
+from robocloud.selection.filtering import filter_robots
 from robocloud.selection.problem import CoalitionProblem
 
 
@@ -50,3 +54,112 @@ def test_pruning_keeps_every_front_member_and_drops_dominated_robots() -> None:
     front = exact_front(problem, survivors)
     assert front
     assert {r for c in front for r in c.robots} <= {problem.ids[i] for i in survivors}
+
+
+CAPABILITY_KINDS = {"light": "sensing", "sound": "sensing", "grabber": "actuating",
+                    "kicker": "actuating"}
+
+
+def fleet_and_task(
+    rng: np.random.Generator, execution: str, tight: bool
+) -> tuple[list[Robot], Task]:
+    robots = []
+    for i in range(int(rng.integers(3, 13))):
+        names = [n for n in CAPABILITY_KINDS if rng.random() < 0.45] or ["grabber"]
+        robots.append(Robot.model_validate({
+            "id": f"r-{i:02d}", "cloud": "cloud-a",
+            "position": [float(rng.integers(0, 50)), float(rng.integers(0, 50))],
+            "speed": 1.0, "battery": 90.0, "status": "idle",
+            "travel_cost_per_m": float(rng.choice([0.0, 0.1])),
+            "capabilities": {
+                n: {"kind": CAPABILITY_KINDS[n], "time": float(rng.integers(1, 6) * 10),
+                    "cost": float(rng.integers(1, 6))}
+                for n in names
+            },
+        }))
+    wanted = rng.choice(sorted(CAPABILITY_KINDS), size=int(rng.integers(1, 4)), replace=False)
+    counts = {str(n): int(rng.integers(1, 3)) for n in wanted}
+    task = Task.model_validate({
+        "location": [25.0, 25.0],
+        "sensing": {n: q for n, q in counts.items() if CAPABILITY_KINDS[n] == "sensing"},
+        "actuating": {n: q for n, q in counts.items() if CAPABILITY_KINDS[n] == "actuating"},
+        "max_robots": int(rng.integers(1, 5)) if tight else 12,
+        "max_cost": float(rng.uniform(5, 30)) if tight else 1e6,
+        "max_time": float(rng.uniform(40, 110)) if tight else 1e6,
+        "execution": execution,
+    })
+    return robots, task
+
+
+@pytest.mark.parametrize("tight", [True, False], ids=["tight", "loose"])
+@pytest.mark.parametrize("execution", ["parallel", "sequential"])
+@pytest.mark.parametrize("seed", range(40))
+def test_exact_equals_brute_force_in_both_modes(seed: int, execution: str, tight: bool) -> None:
+    robots, task = fleet_and_task(np.random.default_rng(seed), execution, tight)
+    problem = CoalitionProblem.build(filter_robots(robots, task), task)
+    assert exact_front(problem) == brute_force_front(problem)
+
+
+@pytest.mark.parametrize("seed", range(60))
+def test_every_tie_is_found(seed: int) -> None:
+    """On coarse values many coalitions share a vector: the solver lists every
+    cheapest class-count vector, checked against enumeration."""
+    import itertools
+
+    size = int(np.random.default_rng(seed).integers(2, 11))
+    problem = random_problem(np.random.default_rng(1000 + seed), size)
+    keep = prune(problem)
+    solver = CoverSolver(problem, keep)
+    result = solver.solve(problem.largest_useful_coalition)
+    costs = {}
+    for size in range(1, problem.size + 1):
+        for members in itertools.combinations(keep.tolist(), size):
+            covered = problem.uses[list(members)].sum(axis=0) >= problem.need
+            if covered.all() and size <= problem.largest_useful_coalition:
+                classes = np.zeros(solver.classes, dtype=np.int64)
+                for r in members:
+                    row = np.flatnonzero((solver.brings == problem.uses[r]).all(axis=1))
+                    if row.size:
+                        classes[row[0]] += 1
+                if (classes <= solver.cap).all():
+                    costs[tuple(classes)] = min(costs.get(tuple(classes), np.inf),
+                                                float(problem.cost[list(members)].sum()))
+    if not costs:
+        assert result.status == "infeasible"
+        return
+    best = min(costs.values())
+    assert result.status == "optimal" and result.cost == pytest.approx(best)
+    expected = {x for x, c in costs.items() if c <= best + 1e-6}
+    assert {tuple(int(v) for v in x) for x in result.ties} == expected
+
+
+@pytest.fixture(params=["grid", "branch-and-bound"])
+def search_path(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> str:
+    """Small searches list every count vector at once; force the branch and
+    bound too, so brute force checks both."""
+    if request.param == "branch-and-bound":
+        monkeypatch.setattr(covering, "GRID_LIMIT", 0)
+    return str(request.param)
+
+
+@pytest.mark.parametrize("seed", range(80))
+def test_both_search_paths_equal_brute_force(seed: int, search_path: str) -> None:
+    problem = random_problem(np.random.default_rng(5000 + seed))
+    assert exact_front(problem) == brute_force_front(problem)
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_both_search_paths_in_both_modes(seed: int, search_path: str) -> None:
+    for execution in ("parallel", "sequential"):
+        for tight in (True, False):
+            robots, task = fleet_and_task(np.random.default_rng(700 + seed), execution, tight)
+            problem = CoalitionProblem.build(filter_robots(robots, task), task)
+            assert exact_front(problem) == brute_force_front(problem)
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_every_tie_is_found_by_branch_and_bound(
+    seed: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(covering, "GRID_LIMIT", 0)
+    test_every_tie_is_found(seed)

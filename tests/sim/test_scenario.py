@@ -156,8 +156,13 @@ def test_a_hundred_thousand_robots_keep_the_shape_and_are_quick() -> None:
 
 @pytest.mark.parametrize(
     ("robots", "clouds", "seed", "field"),
-    [(0, 3, 0, "robots"), (-1, 3, 0, "robots"), (10, 0, 0, "clouds"),
-     (10, 27, 0, "clouds"), (10, 3, -1, "seed")],
+    [
+        (0, 3, 0, "robots"),
+        (-1, 3, 0, "robots"),
+        (10, 0, 0, "clouds"),
+        (10, 27, 0, "clouds"),
+        (10, 3, -1, "seed"),
+    ],
 )
 def test_bad_arguments_are_invalid_input(robots: int, clouds: int, seed: int, field: str) -> None:
     with pytest.raises(InvalidInput) as caught:

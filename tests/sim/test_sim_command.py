@@ -17,9 +17,25 @@ from robocloud.sim.command import add_sim_arguments, main, sim_command
 def test_the_simulator_process_serves_its_robots_and_stops_on_sigterm() -> None:
     endpoint = free_endpoint()
     process = subprocess.Popen(
-        [sys.executable, "-m", "robocloud.sim.command", "--cloud", "cloud-s", "--robots", "12",
-         "--connect", endpoint, "--seed", "3", "--speedup", "20", "--no-churn"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        [
+            sys.executable,
+            "-m",
+            "robocloud.sim.command",
+            "--cloud",
+            "cloud-s",
+            "--robots",
+            "12",
+            "--connect",
+            endpoint,
+            "--seed",
+            "3",
+            "--speedup",
+            "20",
+            "--no-churn",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
     )
     try:
         # The simulator starts first and waits for its router.
@@ -31,8 +47,11 @@ def test_the_simulator_process_serves_its_robots_and_stops_on_sigterm() -> None:
         assert sorted(states) == [f"s-{i:04d}" for i in range(1, 13)]
         assert {s.kind for s in states.values()} <= {"tribot", "base"}
         idle = next(s for s in states.values() if s.status == "idle" and s.battery > 50)
-        here = Assign(request_id="r-1", location=list(idle.position),
-                      capabilities=[next(iter(idle.capabilities))])
+        here = Assign(
+            request_id="r-1",
+            location=list(idle.position),
+            capabilities=[next(iter(idle.capabilities))],
+        )
         assert link.assign(idle.id, here).ok
         busy = next((s for s in states.values() if s.status != "idle"), None)
         if busy is not None:
@@ -51,8 +70,9 @@ def test_the_simulator_process_serves_its_robots_and_stops_on_sigterm() -> None:
 def test_arguments_and_errors(capsys: pytest.CaptureFixture[str]) -> None:
     parser = argparse.ArgumentParser()
     add_sim_arguments(parser)
-    args = parser.parse_args(["--cloud", "cloud-a", "--connect", "tcp/127.0.0.1:1",
-                              "--connect-timeout", "0"])
+    args = parser.parse_args(
+        ["--cloud", "cloud-a", "--connect", "tcp/127.0.0.1:1", "--connect-timeout", "0"]
+    )
     assert (args.robots, args.seed, args.speedup, args.churn) == (20, 0, 1.0, True)
     with pytest.raises(InvalidInput, match=r"cannot open a Zenoh session on tcp/127\.0\.0\.1:1"):
         sim_command(args)

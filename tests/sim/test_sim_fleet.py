@@ -30,8 +30,13 @@ SPEEDUP = 100.0
 
 def robot_json(i: int) -> dict[str, Any]:
     return {
-        "id": f"t-{i:04d}", "cloud": CLOUD, "position": [100.0 * i, 500.0], "speed": 2.0,
-        "battery": 90.0, "status": "idle", "travel_cost_per_m": 0.05,
+        "id": f"t-{i:04d}",
+        "cloud": CLOUD,
+        "position": [100.0 * i, 500.0],
+        "speed": 2.0,
+        "battery": 90.0,
+        "status": "idle",
+        "travel_cost_per_m": 0.05,
         "capabilities": {
             "light": {"kind": "sensing", "time": 20.0, "cost": 1.0},
             "grabber": {"kind": "actuating", "time": 60.0, "cost": 8.0},
@@ -77,8 +82,9 @@ def latest(setup: Setup, robot_id: str) -> State:
 
 def go(setup: Setup, robot_id: str, dx: float, dy: float, request_id: str) -> Assign:
     x, y = latest(setup, robot_id).position
-    return Assign(request_id=request_id, location=[x + dx, y + dy],
-                  capabilities=["light", "grabber"])
+    return Assign(
+        request_id=request_id, location=[x + dx, y + dy], capabilities=["light", "grabber"]
+    )
 
 
 def control(setup: Setup, payload: bytes) -> Ack:
@@ -164,8 +170,9 @@ def test_a_battery_fault_mid_task_fails_it(setup: Setup) -> None:
 
 
 def test_bad_messages_get_sentences_and_strangers_get_nothing(setup: Setup) -> None:
-    replies = list(setup.router.get(keys.cmd_key(CLOUD, "t-0006"), payload=b'{"type": "jump"}',
-                                    timeout=2.0))
+    replies = list(
+        setup.router.get(keys.cmd_key(CLOUD, "t-0006"), payload=b'{"type": "jump"}', timeout=2.0)
+    )
     ack = Ack.model_validate_json(replies[0].ok.payload.to_bytes())  # type: ignore[union-attr]
     assert not ack.ok and ack.robot == "t-0006" and ack.error and ack.error.endswith(".")
     assert "command" in ack.error

@@ -10,8 +10,13 @@ from robocloud.sim.robot import FINISHED_LINGER, Background, SimRobot
 
 def make(**changes: object) -> SimRobot:
     fields: dict[str, object] = {
-        "id": "a-0001", "cloud": "cloud-a", "position": [0.0, 0.0], "speed": 2.0,
-        "battery": 80.0, "status": "idle", "travel_cost_per_m": 0.05,
+        "id": "a-0001",
+        "cloud": "cloud-a",
+        "position": [0.0, 0.0],
+        "speed": 2.0,
+        "battery": 80.0,
+        "status": "idle",
+        "travel_cost_per_m": 0.05,
         "capabilities": {
             "light": {"kind": "sensing", "time": 20.0, "cost": 1.0},
             "grabber": {"kind": "actuating", "time": 60.0, "cost": 8.0},
@@ -21,10 +26,17 @@ def make(**changes: object) -> SimRobot:
     return SimRobot.from_json(fields)
 
 
-def go(x: float = 60.0, y: float = 80.0, execution: str = "parallel",
-       request_id: str = "r-1") -> Assign:
-    return Assign.model_validate({"request_id": request_id, "location": [x, y],
-                                  "capabilities": ["light", "grabber"], "execution": execution})
+def go(
+    x: float = 60.0, y: float = 80.0, execution: str = "parallel", request_id: str = "r-1"
+) -> Assign:
+    return Assign.model_validate(
+        {
+            "request_id": request_id,
+            "location": [x, y],
+            "capabilities": ["light", "grabber"],
+            "execution": execution,
+        }
+    )
 
 
 def test_kind_follows_the_actuator() -> None:
@@ -67,7 +79,8 @@ def test_one_long_step_reports_every_phase_in_order() -> None:
     robot.assign(go(execution="sequential"))  # 50 s + 80 s
     changes = robot.advance(1000.0, 5.0)
     assert [(s.status, s.task.phase) for s in changes] == [  # type: ignore[union-attr]
-        ("busy", "work"), ("idle", "done")
+        ("busy", "work"),
+        ("idle", "done"),
     ]
     assert robot.battery == pytest.approx(80.0 - 1.0 - 80.0 * 0.02)
 

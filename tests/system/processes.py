@@ -163,11 +163,14 @@ class Cloud:
                     process.kill()
                     process.wait(5)
 
-    def fault(self, robot: str, fault: str) -> dict[str, Any]:
-        """Inject a fault into a simulated robot over the cloud's Zenoh router."""
+    def fault(self, robot: str, fault: str, security: Any = None) -> dict[str, Any]:
+        """Inject a fault into a simulated robot over the cloud's Zenoh router.
+
+        ``security``: how to join a router with TLS (the cloud's own certificate).
+        """
         from robocloud.fleet import open_client
 
-        session = open_client([self.zenoh], timeout=5.0)
+        session = open_client([self.zenoh], timeout=5.0, security=security)
         try:
             payload = json.dumps({"fault": fault, "robot": robot})
             for _ in range(50):
@@ -193,11 +196,13 @@ def start_clouds(
     chain: bool = False,
     iaas_args: Callable[[str], list[str]] = lambda name: [],
     sim_args: Callable[[str], list[str]] = lambda name: [],
+    robots_at: Callable[[str], int] | None = None,
 ) -> list[Cloud]:
     """Start one cloud per name, joined, and wait until the first sees them all.
 
     Full mesh, or a chain: a <- b <- c (c reaches a only through b). Each
-    cloud's extra flags come from ``iaas_args(name)`` and ``sim_args(name)``.
+    cloud's extra flags come from ``iaas_args(name)`` and ``sim_args(name)``;
+    ``robots_at(name)``, when given, is its number of robots instead of ``robots``.
     """
     clouds: list[Cloud] = []
     for i, name in enumerate(names):
@@ -205,7 +210,7 @@ def start_clouds(
             name,
             tmp_path,
             f"sqlite:///{tmp_path / f'{name}.db'}",
-            robots=robots,
+            robots=robots if robots_at is None else robots_at(name),
             speedup=speedup,
             seed=i,
             iaas_args=iaas_args(name),

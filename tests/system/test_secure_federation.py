@@ -1,24 +1,48 @@
-"""Two clouds whose overlay runs on mutual TLS, as docs/security.md turns it on.
+"""Three clouds whose overlay runs on mutual TLS, as docs/security.md turns it on.
 
-The flags of ``robocloud iaas`` and ``robocloud sim`` reach Zenoh: the
-federation forms and serves a request across both clouds over ``tls/``
-links, and a simulator without a certificate of the federation's CA is kept
-out.
+cloud-b lends its robots to cloud-a and cloud-c (``--trust cloud-a --trust
+cloud-c``); cloud-a and cloud-c have no robots of their own. The flags of
+``robocloud iaas`` and ``robocloud sim`` reach Zenoh: a request of cloud-a is
+served by cloud-b's robots over ``tls/`` links; a simulator without a
+certificate is kept out; cloud-c, trusted by cloud-b, cannot take or touch
+cloud-a's loans there; a robot's certificate sends no cloud command; a
+confirm without a lease is refused; and when cloud-a disappears, cloud-b
+frees its robots after the deadline and tells cloud-a once it is back.
+
+One set of clouds for the module (starting three TLS clouds takes a while):
+the tests run in order, the last one kills and restarts cloud-a.
 """
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
+import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
-from processes import Cloud, follow, grabber_task, start_clouds
+import zenoh
+from processes import Cloud, follow, grabber_task, start_clouds, wait_until
 
-from robocloud.federation.security import make_certs
+from robocloud.federation import keys
+from robocloud.federation.messages import Dispatch, LoanQuery, Release, Reservation
+from robocloud.federation.security import OverlaySecurity, make_certs
+from robocloud.fleet import open_client
+from robocloud.fleet.messages import Assign
 
-NAMES = ("cloud-a", "cloud-b")
+pytestmark = pytest.mark.slow
+
+NAMES = ("cloud-a", "cloud-b", "cloud-c")
+TRUST = {
+    "cloud-a": ["cloud-b", "cloud-c"],
+    "cloud-b": ["cloud-a", "cloud-c"],
+    "cloud-c": ["cloud-a"],
+}
+DEADLINE = 3.0  # cloud-b's --origin-deadline, short for the test
+ROBOTS = 20  # cloud-b's; some start busy or charging (the simulator's roster)
 
 
 def tls_flags(certs: Path, name: str) -> list[str]:
@@ -32,18 +56,24 @@ def tls_flags(certs: Path, name: str) -> list[str]:
     ]
 
 
-@pytest.fixture
-def secure_federation(tmp_path: Path) -> Iterator[tuple[list[Cloud], Path]]:
+@pytest.fixture(scope="module")
+def federation(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[list[Cloud], Path]]:
+    tmp_path = tmp_path_factory.mktemp("secure")
     certs = tmp_path / "certs"
-    make_certs(certs, [*NAMES, *(f"{n}-robots" for n in NAMES)])
-    other = dict(zip(NAMES, reversed(NAMES), strict=True))
+    make_certs(certs, [*NAMES, "cloud-b-robots"])
+
+    def iaas_args(name: str) -> list[str]:
+        flags = [*tls_flags(certs, name), *(a for t in TRUST[name] for a in ("--trust", t))]
+        return [*flags, "--origin-deadline", str(DEADLINE)] if name == "cloud-b" else flags
+
     clouds = start_clouds(
         tmp_path,
         NAMES,
-        robots=20,
+        robots=0,
         speedup=50.0,
-        iaas_args=lambda name: [*tls_flags(certs, name), "--trust", other[name]],
+        iaas_args=iaas_args,
         sim_args=lambda name: tls_flags(certs, f"{name}-robots"),
+        robots_at=lambda name: ROBOTS if name == "cloud-b" else 0,
     )
     try:
         yield clouds, certs
@@ -52,25 +82,75 @@ def secure_federation(tmp_path: Path) -> Iterator[tuple[list[Cloud], Path]]:
             cloud.stop()
 
 
-def test_a_request_is_served_across_clouds_over_tls(
-    secure_federation: tuple[list[Cloud], Path],
+def session_as(cloud: Cloud, certs: Path, name: str) -> zenoh.Session:
+    """A Zenoh client at ``cloud``'s router with the certificate of ``name`` (a cloud's tool)."""
+    security = OverlaySecurity(
+        ca=certs / "ca.pem", cert=certs / f"{name}.pem", key=certs / f"{name}.key"
+    )
+    return open_client([cloud.zenoh], timeout=5.0, security=security)
+
+
+def send(session: zenoh.Session, key: str, message: Any) -> list[dict[str, Any]]:
+    """The replies (ok or error) to one command; none when a router refused it."""
+    replies = session.get(key, payload=message.model_dump_json(), timeout=1.0)
+    out = []
+    for reply in replies:
+        if reply.ok is not None:
+            out.append(json.loads(reply.ok.payload.to_string()))
+        elif reply.err is not None:
+            out.append({"error": reply.err.payload.to_string()})
+    return out
+
+
+def log_of(cloud: Cloud) -> str:
+    return (cloud.workdir / f"{cloud.name}-iaas.log").read_text()
+
+
+def far_kicker_task(location: list[float]) -> dict[str, Any]:
+    """One kicker, far from cloud-b's idle ones: the robot is on its way for 20 s or more."""
+    return {
+        "location": location,
+        "actuating": {"kicker": 1},
+        "max_robots": 1,
+        "max_cost": 100_000.0,
+        "max_time": 100_000.0,
+        "min_battery": 20.0,
+        "priority": "time",
+    }
+
+
+def start_far_request(a: Cloud, location: list[float]) -> tuple[str, str]:
+    """cloud-a's request, underway with one robot of cloud-b: (request id, robot)."""
+    with a.client() as client:
+        rid = client.post("/v1/requests", json=far_kicker_task(location)).json()["id"]
+        underway = follow(
+            client, rid, lambda r: r["state"] in ("underway", "failed"), 30, "underway"
+        )
+    assert underway["state"] == "underway", underway
+    [assigned] = underway["coalition"]
+    assert assigned["cloud"] == "cloud-b"
+    return rid, assigned["robot"]
+
+
+def test_a_request_is_served_by_another_clouds_robots_over_tls(
+    federation: tuple[list[Cloud], Path],
 ) -> None:
-    clouds, _ = secure_federation
-    with clouds[0].client() as client:
+    (a, _, _), _ = federation
+    with a.client() as client:
         task, homes = grabber_task(client)
-        assert homes == set(NAMES)
+        assert homes == {"cloud-b"}
         rid = client.post("/v1/requests", json=task).json()["id"]
         done = follow(
             client, rid, lambda r: r["state"] in ("completed", "failed", "rejected"), 90, "done"
         )
         assert done["state"] == "completed", done
-        assert {a["cloud"] for a in done["coalition"]} == set(NAMES)
+        assert {x["cloud"] for x in done["coalition"]} == {"cloud-b"}
 
 
 def test_a_simulator_without_a_certificate_is_kept_out(
-    secure_federation: tuple[list[Cloud], Path],
+    federation: tuple[list[Cloud], Path],
 ) -> None:
-    clouds, certs = secure_federation
+    (_, b, _), certs = federation
     # The CA but no certificate of its own: the router asks for one (mutual TLS).
     done = subprocess.run(
         [
@@ -79,11 +159,11 @@ def test_a_simulator_without_a_certificate_is_kept_out(
             "robocloud.cli.main",
             "sim",
             "--cloud",
-            "cloud-a",
+            "cloud-b",
             "--robots",
             "3",
             "--connect",
-            clouds[0].zenoh,
+            b.zenoh,
             "--connect-timeout",
             "3",
             "--tls-ca",
@@ -98,5 +178,136 @@ def test_a_simulator_without_a_certificate_is_kept_out(
     assert "Traceback" not in done.stderr
     last = done.stderr.strip().splitlines()[-1]
     assert "cannot open a Zenoh session" in last and "certificate" in last, last
-    with clouds[0].client() as client:
-        assert len(client.get("/v1/robots").json()) == 20
+    with b.client() as client:
+        assert len(client.get("/v1/robots").json()) == ROBOTS
+
+
+def test_cloud_c_can_neither_take_nor_touch_cloud_as_loans(
+    federation: tuple[list[Cloud], Path],
+) -> None:
+    (a, b, _), certs = federation
+    rid, robot = start_far_request(a, [100.0, 100.0])
+    reserve = Reservation(request_id=rid, robots=[robot])
+    release = Release(request_id=rid, robots=[robot])
+    go = Assign(request_id=rid, location=[0.0, 0.0], capabilities=["kicker"])
+    dispatch = Dispatch(robot=robot, command=go)
+    c = session_as(b, certs, "cloud-c")
+    try:
+        # As cloud-a: on the keys that name cloud-a, cloud-b's router drops it all.
+        for name, message in [
+            ("reserve", reserve),
+            ("confirm", reserve),
+            ("release", release),
+            ("cancel", release),
+            ("dispatch", dispatch),
+            ("loans", LoanQuery()),
+        ]:
+            assert send(c, keys.command("cloud-b", "cloud-a", name), message) == [], name
+        # As itself, naming cloud-a's request and robot: cloud-b refuses and logs it.
+        [taken] = send(c, keys.command("cloud-b", "cloud-c", "reserve"), reserve)
+        assert taken["taken"] == [robot]
+        [confirmed] = send(c, keys.command("cloud-b", "cloud-c", "confirm"), reserve)
+        assert confirmed["taken"] == [robot] and "no live lease" in confirmed["error"]
+        for name in ("release", "cancel"):
+            [done] = send(c, keys.command("cloud-b", "cloud-c", name), release)
+            assert done["ok"] is False and "cloud-c holds no loan" in done["error"], done
+        [ack] = send(c, keys.command("cloud-b", "cloud-c", "dispatch"), dispatch)
+        assert ack["ok"] is False and "not lent to request" in ack["error"]
+    finally:
+        c.close()  # type: ignore[no-untyped-call]
+    refusals = [line for line in log_of(b).splitlines() if "refused a" in line]
+    for what in ("confirm", "release", "cancel", "dispatch"):
+        assert any(
+            f"refused a {what} from cloud-c for request {rid}: {robot} is lent to cloud-a" in line
+            for line in refusals
+        ), (what, refusals)
+    # cloud-a's work is untouched: the same robot still works for it, unstopped.
+    with a.client() as client:
+        now = client.get(f"/v1/requests/{rid}").json()
+        assert now["state"] == "underway", now
+        assert [x["robot"] for x in now["coalition"]] == [robot]
+        assert not any("failed" in (h["detail"] or "") for h in now["history"]), now["history"]
+        with b.client() as home:
+            lent = {r["id"]: r for r in home.get("/v1/robots").json()}[robot]
+        assert lent["status"] == "busy" and lent["request"] is not None, lent
+        # cloud-a's own cancel reaches it: the robot is cloud-b's again.
+        assert client.post(f"/v1/requests/{rid}/cancel").json()["state"] == "canceled"
+
+    def free() -> bool:
+        with b.client() as home:
+            state = {r["id"]: r for r in home.get("/v1/robots").json()}[robot]
+        return state["request"] is None and state["status"] == "idle"
+
+    wait_until(free, 10, f"{robot} to be free at cloud-b")
+
+
+def test_a_robot_certificate_sends_no_cloud_command(federation: tuple[list[Cloud], Path]) -> None:
+    (_, b, _), certs = federation
+    with b.client() as client:
+        idle = [r["id"] for r in client.get("/v1/robots").json() if r["status"] == "idle"]
+    reserve = Reservation(request_id="req-robots", robots=idle[:1])
+    robots = session_as(b, certs, "cloud-b-robots")
+    try:
+        for sender in ("cloud-b-robots", "cloud-a", "cloud-b", "cloud-c"):
+            for name in ("reserve", "confirm"):
+                assert send(robots, keys.command("cloud-b", sender, name), reserve) == []
+    finally:
+        robots.close()  # type: ignore[no-untyped-call]
+    with b.client() as client:
+        now = {r["id"]: r for r in client.get("/v1/robots").json()}
+    assert now[idle[0]]["status"] == "idle" and now[idle[0]]["request"] is None
+
+
+def test_a_confirm_without_a_lease_is_refused(federation: tuple[list[Cloud], Path]) -> None:
+    (_, b, _), certs = federation
+    with b.client() as client:
+        idle = [r["id"] for r in client.get("/v1/robots").json() if r["status"] == "idle"]
+    c = session_as(b, certs, "cloud-c")
+    try:
+        confirm = Reservation(request_id="req-never-reserved", robots=idle[:1])
+        [reply] = send(c, keys.command("cloud-b", "cloud-c", "confirm"), confirm)
+    finally:
+        c.close()  # type: ignore[no-untyped-call]
+    assert reply["taken"] == idle[:1] and "no live lease" in reply["error"]
+    with b.client() as client:
+        now = {r["id"]: r for r in client.get("/v1/robots").json()}
+    assert now[idle[0]]["status"] == "idle" and now[idle[0]]["request"] is None
+
+
+def test_an_origin_that_disappears_loses_its_loans_and_learns_it_back(
+    federation: tuple[list[Cloud], Path],
+) -> None:
+    (a, b, _), certs = federation
+    rid, robot = start_far_request(a, [1950.0, 1950.0])
+    tool = OverlaySecurity(
+        ca=certs / "ca.pem", cert=certs / "cloud-b.pem", key=certs / "cloud-b.key"
+    )
+    a.kill_iaas()
+    b.fault(
+        robot, "silent", tool
+    )  # it drives on, unheard: for cloud-b it no longer works for cloud-a
+    try:
+        ended = f"ended the loan of {robot} to cloud-a's request {rid}: cloud-a was unreachable"
+        started = time.monotonic()
+        wait_until(lambda: ended in log_of(b), 30, "cloud-b to end the loan of the silent robot")
+        # Silent for 5 s (offline), then the 3 s deadline, give or take a reconciliation.
+        assert time.monotonic() - started < 15
+        with b.client() as client:
+            held = {r["id"]: r["request"] for r in client.get("/v1/robots").json()}
+        assert held[robot] is None
+        a.start_iaas()
+        with a.client() as client:
+            told = wait_until(
+                lambda: [
+                    h["detail"]
+                    for h in client.get(f"/v1/requests/{rid}").json()["history"]
+                    if f"cloud-b ended the loan of robot {robot}" in (h["detail"] or "")
+                ],
+                30,
+                "cloud-a, back, to learn that cloud-b ended its loan",
+            )
+        assert len(told) == 1 and f"cloud-a was unreachable for {DEADLINE:g} s" in told[0]
+        back = f"cloud-a is back; 1 of its loans ended while it was away ({robot})"
+        wait_until(lambda: back in log_of(b), 10, "cloud-b to note that cloud-a is back")
+    finally:
+        b.fault(robot, "recover", tool)

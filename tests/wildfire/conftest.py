@@ -12,8 +12,12 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from playwright.sync_api import expect
 from wildfire_browser import Console, open_page
 from wildfire_system import CHROMIUM, CHROMIUM_ARGS, System
+
+# The machine is shared: a page's checks wait up to 10 s rather than Playwright's 5.
+expect.set_options(timeout=10_000)
 
 
 @pytest.fixture(scope="module")

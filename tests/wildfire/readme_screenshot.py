@@ -2,51 +2,42 @@
 
     .venv/bin/python tests/wildfire/readme_screenshot.py [OUTPUT.png]
 
-Starts the real system (an IaaS, 60 simulated robots, the wildfire server) in
-a temporary folder, sends a few requests through the page as an operator
-would, and shoots while the last one is underway. Not a test: run it by hand
-when the page's look changes.
+Starts the real system as ``make run`` has it (three clouds, 1,000 simulated
+robots between them with their background activity, the clock 10 times
+faster, the wildfire server given the three IaaSs) in a temporary folder,
+sends a few requests through the page as an operator would, and shoots while
+the last one is underway. Not a test: run it by hand when the page's look changes.
 """
 
 from __future__ import annotations
 
 import sys
 import tempfile
-import time
 from pathlib import Path
 from typing import Any
 
 from playwright.sync_api import expect, sync_playwright
+from wildfire_page import fill_limits, type_fire, want
 from wildfire_system import CHROMIUM, CHROMIUM_ARGS, System
 
 ROOT = Path(__file__).resolve().parents[2]
-AREA = (84, 14, 958, 888, 990, 930)  # the map's plot area in its viewBox, as js/map.js
 
 
-def click_forest(page: Any, x: float, y: float) -> None:
-    left, top, right, bottom, width, height = AREA
-    box = page.locator("#map").bounding_box()
-    sx = left + x / 2000 * (right - left)
-    sy = top + (2000 - y) / 2000 * (bottom - top)
-    page.mouse.click(box["x"] + sx / width * box["width"],
-                     box["y"] + sy / height * box["height"])
-
-
-def fill(page: Any, caps: dict[str, int], label: str, priority: str = "time",
-         max_time: str = "1800", min_battery: str = "20") -> None:
-    for row in page.locator("#caps .cap").all():
-        row.locator("input").fill(str(caps.get(row.get_attribute("data-cap"), 0)))
-    page.fill("#max-robots", "6")
-    page.fill("#max-cost", "400")
-    page.fill("#max-time", max_time)
-    page.fill("#min-battery", min_battery)
+def send(page: Any, x: float, y: float, caps: dict[str, int], label: str, priority: str,
+         max_time: str = "1800", min_battery: str = "20", max_cost: str = "400") -> None:
+    type_fire(page, x, y)
+    want(page, caps)
+    fill_limits(page, max_time=max_time, max_cost=max_cost, min_battery=min_battery,
+                label=label, max_robots="6")
     page.click(f"label[for=prio-{priority}]")
-    page.fill("#label", label)
+    page.click("#send")
+    expect(page.locator("#state-head")).to_contain_text(label, timeout=20_000)
 
 
 def main(output: Path) -> None:
     with tempfile.TemporaryDirectory() as folder:
-        system = System(Path(folder), clouds=3, robots=30, speedup=15.0, seed=3)
+        system = System(Path(folder), clouds=3, robot_counts=[334, 333, 333], speedup=10.0,
+                        seed=1, churn=True)
         try:
             system.start()
             with sync_playwright() as playwright:
@@ -54,28 +45,25 @@ def main(output: Path) -> None:
                                                      args=CHROMIUM_ARGS)
                 page = browser.new_page(viewport={"width": 1280, "height": 800})
                 page.goto(system.url)
-                expect(page.locator("#caps .cap").first).to_be_attached(timeout=15_000)
+                expect(page.locator("#map .robot")).to_have_count(1000, timeout=30_000)
                 # An earlier request, canceled on its way.
-                click_forest(page, 1500, 450)
-                fill(page, {"kicker": 1, "sound": 1}, "east track", "cost")
-                page.click("#send")
+                send(page, 1500, 450, {"kicker": 1, "sound": 1}, "east track", "cost")
                 expect(page.locator("#state-head")).to_have_attribute(
                     "data-state", "underway", timeout=20_000)
                 page.click("#cancel")
+                page.click("#cancel-confirm")
                 expect(page.locator("#state-head")).to_have_attribute("data-state", "canceled")
                 # One the fleet cannot meet: its reason is kept.
-                click_forest(page, 300, 1800)
-                fill(page, {"grabber": 5, "light": 3}, "north ridge", max_time="300")
-                page.click("#send")
+                send(page, 300, 1800, {"grabber": 5, "light": 3}, "north ridge", "time",
+                     max_time="60")
                 expect(page.locator("#state-head")).to_have_attribute(
                     "data-state", "rejected", timeout=20_000)
                 # The one in the picture: two grabbers and a touch sensor.
-                click_forest(page, 1040, 1130)
-                fill(page, {"grabber": 2, "touch": 1}, "valley fire", "balanced")
-                page.click("#send")
+                send(page, 1040, 1130, {"grabber": 2, "touch": 1}, "valley fire", "balanced",
+                     max_time="3600")
                 expect(page.locator("#state-head")).to_have_attribute(
                     "data-state", "underway", timeout=20_000)
-                time.sleep(25)
+                page.wait_for_timeout(12_000)
                 page.locator("#map").blur()
                 page.screenshot(path=str(output))
                 browser.close()

@@ -7,7 +7,9 @@ reach the IaaS; ``stop`` always ends every process it started.
 
 from __future__ import annotations
 
+import json
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -70,14 +72,19 @@ class System:
     """``robocloud iaas`` + ``robocloud sim`` per cloud, and ``robocloud wildfire``.
 
     Several clouds form a federation (each IaaS peers with the ones before
-    it); the page talks to the first cloud's IaaS and sees every robot.
+    it); the wildfire server is given every cloud's IaaS, the first as home
+    (``home_only`` gives it the first alone), and sees every robot.
     """
 
     workdir: Path
     clouds: int = 1
     robots: int = 60  # per cloud
+    robot_counts: list[int] | None = None  # per cloud, when they differ
     speedup: float = 100.0
     seed: int = 0
+    churn: bool = False
+    home_only: bool = False
+    wildfire_args: list[str] = field(default_factory=list)
     wildfire_port: int = field(default_factory=free_port)
     processes: dict[str, subprocess.Popen[bytes]] = field(default_factory=dict)
     logs: dict[str, IO[bytes]] = field(default_factory=dict)
@@ -86,6 +93,15 @@ class System:
     def __post_init__(self) -> None:
         self.members = [Cloud(f"cloud-{chr(ord('a') + i)}", self.seed + i)
                         for i in range(self.clouds)]
+
+    def count(self, cloud: Cloud) -> int:
+        if self.robot_counts is None:
+            return self.robots
+        return self.robot_counts[self.members.index(cloud)]
+
+    @property
+    def total(self) -> int:
+        return sum(self.count(c) for c in self.members)
 
     @property
     def iaas_url(self) -> str:
@@ -130,20 +146,60 @@ class System:
                        == 200)
             self._start(f"{cloud.name}-sim", [
                 "robocloud.cli.main", "sim", "--cloud", cloud.name, "--robots",
-                str(self.robots), "--connect", cloud.zenoh, "--speedup", str(self.speedup),
-                "--seed", str(cloud.seed), "--no-churn",
+                str(self.count(cloud)), "--connect", cloud.zenoh, "--speedup", str(self.speedup),
+                "--seed", str(cloud.seed), *([] if self.churn else ["--no-churn"]),
             ])
+        iaas = [self.members[0]] if self.home_only else self.members
         self._start("wildfire", [
-            "robocloud.wildfire.command", "--iaas", self.iaas_url,
+            "robocloud.wildfire.command", *[a for c in iaas for a in ("--iaas", c.url)],
             "--listen", f"127.0.0.1:{self.wildfire_port}", "--log-level", "warning",
+            *self.wildfire_args,
         ], env={"ROBOCLOUD_WILDFIRE_API_KEY": API_KEY})
-        total = self.robots * self.clouds
+        total = self.total
         with self.iaas() as client:
             self._wait(f"{total} robots to report", 40, lambda: len(client.get(
                 "/v1/robots", params={"scope": "federation"}).json()) >= total)
         self._wait("the wildfire server to reach the IaaS", 30,
                    lambda: httpx.get(f"{self.url}api/health", timeout=2).status_code == 200)
         return self
+
+    def cloud(self, name: str) -> Cloud:
+        return next(c for c in self.members if c.name == name)
+
+    def freeze(self, part: str) -> None:
+        """Stop a process dead (SIGSTOP): its sockets stay open, nothing answers.
+
+        ``part`` is a cloud (its IaaS) or ``wildfire``."""
+        self.processes[part if part == "wildfire" else f"{part}-iaas"].send_signal(signal.SIGSTOP)
+
+    def thaw(self, part: str) -> None:
+        self.processes[part if part == "wildfire" else f"{part}-iaas"].send_signal(signal.SIGCONT)
+
+    def kill_cloud(self, cloud: str) -> None:
+        """A cloud gone at once: its IaaS and its robots, killed."""
+        for part in ("iaas", "sim"):
+            process = self.processes[f"{cloud}-{part}"]
+            process.send_signal(signal.SIGKILL)
+            process.wait(10)
+
+    def fault(self, cloud: str, robot: str, fault: str) -> dict[str, Any]:
+        """Inject a fault into a simulated robot over its cloud's Zenoh router."""
+        from robocloud.fleet import open_client
+
+        session = open_client([self.cloud(cloud).zenoh], timeout=5.0)
+        try:
+            payload = json.dumps({"fault": fault, "robot": robot})
+            for _ in range(50):
+                replies = list(session.get(f"robocloud/{cloud}/sim/control", payload=payload,
+                                           timeout=2.0))
+                oks = [r.ok for r in replies if r.ok is not None]
+                if oks:
+                    answer: dict[str, Any] = json.loads(oks[0].payload.to_string())
+                    return answer
+                time.sleep(0.1)  # routes not known yet
+            raise AssertionError("the simulator did not answer the fault")
+        finally:
+            session.close()
 
     def _wait(self, what: str, timeout: float, predicate: Callable[[], Any]) -> None:
         def alive_and(predicate: Callable[[], Any] = predicate) -> Any:
@@ -155,6 +211,7 @@ class System:
     def stop(self) -> None:
         for process in self.processes.values():
             if process.poll() is None:
+                process.send_signal(signal.SIGCONT)  # a frozen process cannot end
                 process.terminate()
         for process in self.processes.values():
             try:

@@ -223,8 +223,9 @@ def plan(args: argparse.Namespace, key: str) -> tuple[list[Member], list[Part]]:
         WILDFIRE,
         [
             "wildfire",
-            "--iaas",
-            members[0].url,
+            # Every cloud's IaaS, in order of preference: the page keeps working
+            # while any one of them answers.
+            *[arg for m in members for arg in ("--iaas", m.url)],
             "--listen",
             f"127.0.0.1:{args.wildfire_port}",
         ],

@@ -119,6 +119,21 @@ def add_iaas_arguments(parser: argparse.ArgumentParser) -> None:
         help="robot time per wall second, as the simulator's --speedup",
     )
     parser.add_argument(
+        "--lease-max",
+        type=float,
+        default=30.0,
+        metavar="SECONDS",
+        help="the longest lease on a robot lent to another cloud until its dispatch (default 30)",
+    )
+    parser.add_argument(
+        "--origin-deadline",
+        type=float,
+        default=60.0,
+        metavar="SECONDS",
+        help="how long a cloud this one lends to may stay unreachable once the robot is idle "
+        "or done, before the loan ends (default 60)",
+    )
+    parser.add_argument(
         "--log-level", default="info", choices=("debug", "info", "warning", "error")
     )
     security.add_arguments(parser, router=True)
@@ -164,6 +179,12 @@ def iaas_settings(args: argparse.Namespace) -> Settings:
         value = getattr(args, flag.removeprefix("--").replace("-", "_"))
         if not value > 0:  # also refuses nan
             raise InvalidInput(f"{flag} must be more than 0, not {value}.", flag)
+    for flag in ("--lease-max", "--origin-deadline"):
+        value = getattr(args, flag.removeprefix("--").replace("-", "_"))
+        if not 0 < value <= 86_400:
+            raise InvalidInput(
+                f"{flag} must be more than 0 and at most 86400 seconds, not {value}.", flag
+            )
     zenoh_listen = tuple(args.zenoh or [DEFAULT_ZENOH])
     check_endpoints(zenoh_listen, "--zenoh")
     check_endpoints(args.peer, "--peer")
@@ -187,6 +208,8 @@ def iaas_settings(args: argparse.Namespace) -> Settings:
         ack_timeout=args.ack_timeout,
         forget_after=args.forget_after,
         time_scale=args.time_scale,
+        lease_max=args.lease_max,
+        origin_deadline=args.origin_deadline,
         overlay_security=overlay_security,
     )
     return settings

@@ -1,32 +1,40 @@
 """The JSON messages between IaaS nodes on the overlay (the thesis's Task Delegator Engine).
 
 Every message is a Zenoh query to one cloud's key (or to ``robocloud/*/...``
-for all of them) whose payload and reply are these models:
+for all of them) whose payload and reply are these models. Questions are
+open to every member of the federation; commands are sent on a key that
+names their sender (``robocloud.federation.keys``), and the home takes the
+origin from that key, never from the payload:
 
-=================================  ==========================  ======================
-key                                payload                     reply
-=================================  ==========================  ======================
-``robocloud/<cloud>/info``         (none)                      ``CloudInfo``
-``robocloud/<cloud>/idle``         ``IdleQuery``               ``IdleReply``
-``robocloud/<cloud>/fleet``        (none)                      ``FleetReply``
-``robocloud/<cloud>/reserve``      ``Reservation``             ``ReserveReply``
-``robocloud/<cloud>/confirm``      ``Reservation``             ``ReserveReply``
-``robocloud/<cloud>/release``      ``Release``                 ``Done``
-``robocloud/<cloud>/dispatch``     ``Dispatch``                ``Ack`` (the robot's)
-``robocloud/<cloud>/cancel``       ``Release``                 ``Done``
-``robocloud/<cloud>/status``       ``StatusQuery``             ``RequestStatus``
-=================================  ==========================  ======================
+==============================================  ==================  ======================
+key                                             payload             reply
+==============================================  ==================  ======================
+``robocloud/<cloud>/info``                      (none)              ``CloudInfo``
+``robocloud/<cloud>/idle``                      ``IdleQuery``       ``IdleReply``
+``robocloud/<cloud>/fleet``                     (none)              ``FleetReply``
+``robocloud/<origin>/status``                   ``StatusQuery``     ``StatusReply``
+``robocloud/<home>/from/<origin>/reserve``      ``Reservation``     ``ReserveReply``
+``robocloud/<home>/from/<origin>/confirm``      ``Reservation``     ``ReserveReply``
+``robocloud/<home>/from/<origin>/release``      ``Release``         ``Done``
+``robocloud/<home>/from/<origin>/dispatch``     ``Dispatch``        ``Ack`` (the robot's)
+``robocloud/<home>/from/<origin>/cancel``       ``Release``         ``Done``
+``robocloud/<home>/from/<origin>/loans``        ``LoanQuery``       ``LoanReply``
+==============================================  ==================  ======================
 
 A cloud announces itself with the liveliness token
 ``robocloud/federation/clouds/<cloud>``; robots' states are on their home
 cloud's keys (``robocloud/<cloud>/robots/<id>/state``) and any IaaS that uses
 a robot subscribes to them. Commands to a robot go only through its home
-cloud, which checks that the asking cloud is trusted and holds the robot.
+cloud, which checks that the sender is trusted and holds the robot (a loan).
+
+Lists are bounded (``MAX_ITEMS``) so a well-formed but absurd message is
+refused before any work; the overlay also refuses payloads over
+``MAX_MESSAGE_BYTES``. Fields a receiver does not know are ignored.
 """
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Annotated, Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -36,7 +44,9 @@ from robocloud.fleet.messages import Assign
 
 _WIRE = ConfigDict(extra="ignore", frozen=True)
 
-CLOUDS_TOKEN = "robocloud/federation/clouds"
+MAX_ITEMS = 1000  # robots, request ids or loans in one message
+MAX_MESSAGE_BYTES = 1 << 20  # a reply of 1,000 idle robots is about 400 KB
+Why = Annotated[str, Field(max_length=500)]
 
 
 class CloudInfo(BaseModel):
@@ -50,13 +60,17 @@ class CloudInfo(BaseModel):
 
 
 class IdleQuery(BaseModel):
-    """The task's filter, so only useful robots travel (Algorithm 2 at each home)."""
+    """The task's filter, so only useful robots travel (Algorithm 2 at each home).
+
+    A question, so ``origin`` is what the asker claims: it only decides
+    whether a home that trusts nobody by that name answers with no robots.
+    """
 
     model_config = _WIRE
 
     origin: Name
     min_battery: float = Field(0.0, ge=0.0, le=100.0)
-    capabilities: list[Name] = Field(default_factory=list)
+    capabilities: list[Name] = Field(default_factory=list, max_length=MAX_ITEMS)
 
 
 class IdleReply(BaseModel):
@@ -74,14 +88,17 @@ class FleetReply(BaseModel):
 
 
 class Reservation(BaseModel):
-    """Hold robots of the home cloud for a request of ``origin``; a lease until confirmed."""
+    """Lend robots of the home cloud to a request of the sender; a lease until confirmed.
+
+    ``lease_seconds`` is what the origin asks; the home grants at most its own
+    maximum (and its maximum when none is asked).
+    """
 
     model_config = _WIRE
 
-    origin: Name
     request_id: Name
-    robots: list[Name]
-    lease_seconds: float | None = Field(None, gt=0)
+    robots: list[Name] = Field(min_length=1, max_length=MAX_ITEMS)
+    lease_seconds: float | None = Field(None, gt=0, le=86_400)
 
 
 class ReserveReply(BaseModel):
@@ -94,10 +111,9 @@ class ReserveReply(BaseModel):
 class Release(BaseModel):
     model_config = _WIRE
 
-    origin: Name
     request_id: Name
-    robots: list[Name] | None = None  # None: every robot of the request
-    why: str | None = None
+    robots: list[Name] | None = Field(None, max_length=MAX_ITEMS)  # None: all of the request
+    why: Why | None = None
 
 
 class Done(BaseModel):
@@ -110,16 +126,17 @@ class Done(BaseModel):
 class Dispatch(BaseModel):
     model_config = _WIRE
 
-    origin: Name
     robot: Name
     command: Assign
 
 
 class StatusQuery(BaseModel):
+    """A home asks the origin about the requests it lends robots to."""
+
     model_config = _WIRE
 
     home: Name
-    request_id: Name
+    request_ids: list[Name] = Field(min_length=1, max_length=MAX_ITEMS)
 
 
 class RequestStatus(BaseModel):
@@ -131,3 +148,36 @@ class RequestStatus(BaseModel):
     known: bool
     final: bool = False
     robots: list[Name] = Field(default_factory=list, description="its robots now")
+
+
+class StatusReply(BaseModel):
+    model_config = _WIRE
+
+    requests: list[RequestStatus] = Field(default_factory=list, max_length=MAX_ITEMS)
+
+
+class LoanQuery(BaseModel):
+    """The origin asks a home about its loans there; ``told``: notices it has taken in."""
+
+    model_config = _WIRE
+
+    told: list[Name] = Field(default_factory=list, max_length=MAX_ITEMS)
+
+
+class LoanNotice(BaseModel):
+    """A loan the home ended on its own while the origin was away."""
+
+    model_config = _WIRE
+
+    loan: Name
+    robot: Name
+    request_id: Name
+    why: Why
+
+
+class LoanReply(BaseModel):
+    model_config = _WIRE
+
+    cloud: Name
+    held: int = Field(0, ge=0, description="robots lent to the asker now")
+    ended: list[LoanNotice] = Field(default_factory=list, max_length=MAX_ITEMS)

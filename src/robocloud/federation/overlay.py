@@ -1,11 +1,19 @@
-"""The overlay between IaaS nodes over Zenoh: presence, scatter-gather, commands via home clouds.
+"""The overlay between IaaS nodes: presence, scatter-gather, commands via home clouds.
 
-``Overlay`` is the seam the IaaS uses; ``ZenohOverlay`` is the real one. The
-IaaS gives the overlay a ``HomeDesk``: what its own cloud answers when other
-clouds ask (its idle robots, reservations, dispatch to its robots).
+::
 
-Queries are answered on a small thread pool, never on Zenoh's own threads,
-because answering may itself send queries (a dispatch asks the robot).
+    Overlay                 the seam the IaaS uses (a Protocol)
+    ├── ZenohOverlay        the real one, on the IaaS's Zenoh router session
+    └── MemoryOverlay       in memory, for fast tests (robocloud.federation.memory)
+    HomeDesk                what a cloud answers about its own robots (robocloud.iaas.home.Home)
+
+The IaaS gives the overlay a ``HomeDesk``: what its own cloud answers when
+other clouds ask (its idle robots, loans, dispatch to its robots). A command
+reaches the desk with the sender's name taken from the key it came on
+(``robocloud.federation.keys``), never from its payload.
+
+Zenoh queries are answered on a small thread pool, never on Zenoh's own
+threads, because answering may itself send queries (a dispatch asks the robot).
 """
 
 from __future__ import annotations
@@ -22,21 +30,24 @@ import pydantic
 import zenoh
 
 from robocloud.errors import RoboCloudError
+from robocloud.federation import keys
 from robocloud.federation.messages import (
-    CLOUDS_TOKEN,
+    MAX_MESSAGE_BYTES,
     CloudInfo,
     Dispatch,
     Done,
     FleetReply,
     IdleQuery,
     IdleReply,
+    LoanQuery,
+    LoanReply,
     Release,
-    RequestStatus,
     Reservation,
     ReserveReply,
     StatusQuery,
+    StatusReply,
 )
-from robocloud.fleet import keys
+from robocloud.fleet import keys as robot_keys
 from robocloud.fleet.link import LatestStates, StateListener
 from robocloud.fleet.messages import Ack, State
 
@@ -46,21 +57,26 @@ M = TypeVar("M", bound=pydantic.BaseModel)
 
 
 class Unreachable(RoboCloudError):
-    """Another cloud did not answer in time."""
+    """Another cloud did not answer in time (or its router refused to pass the query)."""
 
 
 class HomeDesk(Protocol):
-    """What a cloud answers about its own robots when other clouds ask."""
+    """What a cloud answers about its own robots when other clouds ask.
+
+    Questions come from anyone; commands come with ``origin``, the sender
+    named by the key they came on.
+    """
 
     def info(self) -> CloudInfo: ...
     def idle_robots(self, query: IdleQuery) -> IdleReply: ...
     def fleet(self) -> FleetReply: ...
-    def reserve(self, reservation: Reservation) -> ReserveReply: ...
-    def confirm(self, reservation: Reservation) -> ReserveReply: ...
-    def release(self, release: Release) -> Done: ...
-    def dispatch(self, dispatch: Dispatch) -> Ack: ...
-    def cancel(self, release: Release) -> Done: ...
-    def status(self, query: StatusQuery) -> RequestStatus: ...
+    def status(self, query: StatusQuery) -> StatusReply: ...
+    def reserve(self, origin: str, reservation: Reservation) -> ReserveReply: ...
+    def confirm(self, origin: str, reservation: Reservation) -> ReserveReply: ...
+    def release(self, origin: str, release: Release) -> Done: ...
+    def dispatch(self, origin: str, dispatch: Dispatch) -> Ack: ...
+    def cancel(self, origin: str, release: Release) -> Done: ...
+    def loans(self, origin: str, query: LoanQuery) -> LoanReply: ...
 
 
 @dataclass
@@ -72,8 +88,79 @@ class Gathered:
     elapsed_ms: float = 0.0
 
 
+class Overlay(Protocol):
+    """This cloud's presence on the overlay, and its calls to the other clouds.
+
+    Calls to one cloud raise ``Unreachable`` when it does not answer (except
+    ``dispatch``, which answers a refused ``Ack``).
+    """
+
+    @property
+    def cloud(self) -> str: ...
+
+    def clouds(self) -> list[str]:
+        """The live clouds (this one included)."""
+        ...
+
+    def infos(self) -> list[CloudInfo]:
+        """Every live cloud's info (robot counts), this one's included."""
+        ...
+
+    def gather_idle(self, query: IdleQuery, timeout: float | None = None) -> Gathered:
+        """The idle robots of every other live cloud that answers within ``timeout``."""
+        ...
+
+    def fleets(self) -> list[FleetReply]: ...
+    def reserve(self, home: str, reservation: Reservation) -> ReserveReply: ...
+    def confirm(self, home: str, reservation: Reservation) -> ReserveReply: ...
+    def release(self, home: str, release: Release) -> Done: ...
+    def dispatch(self, home: str, dispatch: Dispatch) -> Ack: ...
+    def cancel(self, home: str, release: Release) -> Done: ...
+    def loans(self, home: str, query: LoanQuery) -> LoanReply: ...
+    def status(self, origin: str, query: StatusQuery) -> StatusReply: ...
+
+    def watch(self, cloud: str, robot_id: str) -> None:
+        """Follow a remote robot's state (for the requests it works on)."""
+        ...
+
+    def unwatch(self, cloud: str, robot_id: str) -> None: ...
+    def ages(self) -> dict[str, float]: ...
+    def states(self) -> dict[str, State]: ...
+    def on_state(self, listener: StateListener) -> Callable[[], None]: ...
+    def close(self) -> None: ...
+
+
+def desk_handlers(desk: HomeDesk) -> dict[str, Callable[[str, bytes], pydantic.BaseModel]]:
+    """How each key name is answered: ``(origin, payload) -> reply`` (origin unused by questions).
+
+    Shared by the Zenoh and the in-memory overlays, so both parse and answer alike.
+    """
+    return {
+        "info": lambda _, __: desk.info(),
+        "idle": lambda _, p: desk.idle_robots(IdleQuery.model_validate_json(p)),
+        "fleet": lambda _, __: desk.fleet(),
+        "status": lambda _, p: desk.status(StatusQuery.model_validate_json(p)),
+        "reserve": lambda o, p: desk.reserve(o, Reservation.model_validate_json(p)),
+        "confirm": lambda o, p: desk.confirm(o, Reservation.model_validate_json(p)),
+        "release": lambda o, p: desk.release(o, Release.model_validate_json(p)),
+        "dispatch": lambda o, p: desk.dispatch(o, Dispatch.model_validate_json(p)),
+        "cancel": lambda o, p: desk.cancel(o, Release.model_validate_json(p)),
+        "loans": lambda o, p: desk.loans(o, LoanQuery.model_validate_json(p)),
+    }
+
+
+def answer(handler: Callable[[str, bytes], pydantic.BaseModel], origin: str, payload: bytes) -> str:
+    """The reply's JSON, or ``RoboCloudError`` with the sentence for the asker."""
+    if len(payload) > MAX_MESSAGE_BYTES:
+        raise RoboCloudError(f"the message is {len(payload)} bytes; at most {MAX_MESSAGE_BYTES}.")
+    try:
+        return handler(origin, payload).model_dump_json()
+    except pydantic.ValidationError as error:
+        raise RoboCloudError(f"invalid message: {error.errors()[0]['msg']}") from error
+
+
 class ZenohOverlay:
-    """This cloud's presence on the overlay, and its calls to the other clouds."""
+    """The overlay on a Zenoh session (the IaaS's router session)."""
 
     def __init__(
         self,
@@ -84,44 +171,43 @@ class ZenohOverlay:
         offline_after: float = 5.0,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
-        self.cloud = keys.check_chunk(cloud, "cloud")
+        self._cloud = robot_keys.check_chunk(cloud, "cloud")
         self._session = session
-        self._desk = desk
         self._timeout = timeout
         self._pool = ThreadPoolExecutor(8, thread_name_prefix=f"overlay-{cloud}")
         self._watched = LatestStates("*", offline_after, clock)
         self._subscribers: dict[str, Any] = {}
         self._lock = threading.Lock()
-        handlers: dict[str, Callable[[bytes], pydantic.BaseModel]] = {
-            "info": lambda _: desk.info(),
-            "idle": lambda p: desk.idle_robots(IdleQuery.model_validate_json(p)),
-            "fleet": lambda _: desk.fleet(),
-            "reserve": lambda p: desk.reserve(Reservation.model_validate_json(p)),
-            "confirm": lambda p: desk.confirm(Reservation.model_validate_json(p)),
-            "release": lambda p: desk.release(Release.model_validate_json(p)),
-            "dispatch": lambda p: desk.dispatch(Dispatch.model_validate_json(p)),
-            "cancel": lambda p: desk.cancel(Release.model_validate_json(p)),
-            "status": lambda p: desk.status(StatusQuery.model_validate_json(p)),
-        }
+        handlers = desk_handlers(desk)
+        self._desk = desk
         self._queryables = [
-            session.declare_queryable(f"robocloud/{cloud}/{name}", self._handler(handler))
-            for name, handler in handlers.items()
+            session.declare_queryable(
+                keys.question(cloud, name)
+                if name in keys.QUESTIONS
+                else keys.command(cloud, "*", name),
+                self._handler(handlers[name]),
+            )
+            for name in (*keys.QUESTIONS, *keys.COMMANDS)
         ]
         # Declared last: a cloud that sees the token can query every key above.
-        self._token = session.liveliness().declare_token(f"{CLOUDS_TOKEN}/{cloud}")
+        self._token = session.liveliness().declare_token(keys.cloud_token(cloud))
+
+    @property
+    def cloud(self) -> str:
+        return self._cloud
 
     # -- presence ------------------------------------------------------------
 
     def clouds(self) -> list[str]:
-        """The live clouds (this one included), by their liveliness tokens."""
         names = set()
-        for reply in self._session.liveliness().get(f"{CLOUDS_TOKEN}/*", timeout=self._timeout):
+        for reply in self._session.liveliness().get(
+            f"{keys.CLOUDS_TOKEN}/*", timeout=self._timeout
+        ):
             if reply.ok is not None:
                 names.add(str(reply.ok.key_expr).rsplit("/", 1)[-1])
         return sorted(names)
 
     def infos(self) -> list[CloudInfo]:
-        """Every live cloud's info (robot counts), this one's included."""
         out = [self._desk.info()]
         for reply in self._scatter("info", None):
             try:
@@ -135,7 +221,6 @@ class ZenohOverlay:
     # -- scatter-gather ------------------------------------------------------
 
     def gather_idle(self, query: IdleQuery, timeout: float | None = None) -> Gathered:
-        """The idle robots of every other live cloud that answers within ``timeout``."""
         started = time.perf_counter()
         expected = set(self.clouds()) - {self.cloud}
         gathered = Gathered()
@@ -165,38 +250,40 @@ class ZenohOverlay:
     # -- calls to one cloud -----------------------------------------------------
 
     def reserve(self, home: str, reservation: Reservation) -> ReserveReply:
-        return self._call(home, "reserve", reservation, ReserveReply)
+        return self._command(home, "reserve", reservation, ReserveReply)
 
     def confirm(self, home: str, reservation: Reservation) -> ReserveReply:
-        return self._call(home, "confirm", reservation, ReserveReply)
+        return self._command(home, "confirm", reservation, ReserveReply)
 
     def release(self, home: str, release: Release) -> Done:
-        return self._call(home, "release", release, Done)
+        return self._command(home, "release", release, Done)
 
     def dispatch(self, home: str, dispatch: Dispatch) -> Ack:
         try:
-            return self._call(home, "dispatch", dispatch, Ack)
+            return self._command(home, "dispatch", dispatch, Ack)
         except Unreachable as error:
             return Ack.refuse(dispatch.robot, dispatch.command.request_id, error.message)
 
     def cancel(self, home: str, release: Release) -> Done:
-        return self._call(home, "cancel", release, Done)
+        return self._command(home, "cancel", release, Done)
 
-    def status(self, origin: str, query: StatusQuery) -> RequestStatus:
-        return self._call(origin, "status", query, RequestStatus)
+    def loans(self, home: str, query: LoanQuery) -> LoanReply:
+        return self._command(home, "loans", query, LoanReply)
+
+    def status(self, origin: str, query: StatusQuery) -> StatusReply:
+        return self._call(origin, keys.question(origin, "status"), "status", query, StatusReply)
 
     # -- robots of other clouds ---------------------------------------------------
 
     def watch(self, cloud: str, robot_id: str) -> None:
-        """Follow a remote robot's state (for the requests it works on)."""
-        key = keys.state_key(cloud, robot_id)
+        key = robot_keys.state_key(cloud, robot_id)
         with self._lock:
             if key in self._subscribers:
                 return
             self._subscribers[key] = self._session.declare_subscriber(key, self._on_sample)
 
     def unwatch(self, cloud: str, robot_id: str) -> None:
-        key = keys.state_key(cloud, robot_id)
+        key = robot_keys.state_key(cloud, robot_id)
         with self._lock:
             subscriber = self._subscribers.pop(key, None)
         if subscriber is not None:
@@ -224,38 +311,38 @@ class ZenohOverlay:
     # -- internals ------------------------------------------------------------
 
     def _handler(
-        self, answer: Callable[[bytes], pydantic.BaseModel]
+        self, handler: Callable[[str, bytes], pydantic.BaseModel]
     ) -> Callable[[zenoh.Query], None]:
         def on_query(query: zenoh.Query) -> None:
             # Keep Zenoh's thread free: the answer may send queries itself.
-            self._pool.submit(self._answer, query, answer)
+            self._pool.submit(self._answer, query, handler)
 
         return on_query
 
-    def _answer(self, query: zenoh.Query, answer: Callable[[bytes], pydantic.BaseModel]) -> None:
+    def _answer(
+        self, query: zenoh.Query, handler: Callable[[str, bytes], pydantic.BaseModel]
+    ) -> None:
         with query:
+            key = str(query.key_expr)
+            # A command's sender is the key's: the router let only that cloud send on it.
+            origin = keys.sender_of(key) or ""
             payload = query.payload.to_bytes() if query.payload is not None else b""
             try:
-                reply = answer(payload)
-            except pydantic.ValidationError as error:
-                query.reply_err(f"invalid message: {error.errors()[0]['msg']}")
-                return
+                reply = answer(handler, origin, payload)
             except RoboCloudError as error:
                 query.reply_err(error.message)
                 return
             except Exception:
-                logger.exception("answering %s failed", query.key_expr)
+                logger.exception("answering %s failed", key)
                 query.reply_err("internal error")
                 return
-            query.reply(
-                query.key_expr, reply.model_dump_json(), encoding=zenoh.Encoding.APPLICATION_JSON
-            )
+            query.reply(query.key_expr, reply, encoding=zenoh.Encoding.APPLICATION_JSON)
 
     def _scatter(
         self, name: str, message: pydantic.BaseModel | None, timeout: float | None = None
     ) -> list[bytes]:
         replies = self._session.get(
-            f"robocloud/*/{name}",
+            keys.question("*", name),
             payload=message.model_dump_json() if message is not None else None,
             target=zenoh.QueryTarget.ALL,
             consolidation=zenoh.ConsolidationMode.NONE,
@@ -263,9 +350,14 @@ class ZenohOverlay:
         )
         return [r.ok.payload.to_bytes() for r in replies if r.ok is not None]
 
-    def _call(self, cloud: str, name: str, message: pydantic.BaseModel, model: type[M]) -> M:
+    def _command(self, home: str, name: str, message: pydantic.BaseModel, model: type[M]) -> M:
+        return self._call(home, keys.command(home, self.cloud, name), name, message, model)
+
+    def _call(
+        self, cloud: str, key: str, name: str, message: pydantic.BaseModel, model: type[M]
+    ) -> M:
         replies = self._session.get(
-            f"robocloud/{cloud}/{name}",
+            key,
             payload=message.model_dump_json(),
             encoding=zenoh.Encoding.APPLICATION_JSON,
             timeout=self._timeout,
@@ -274,7 +366,10 @@ class ZenohOverlay:
             if reply.ok is None:
                 detail = reply.err.payload.to_string() if reply.err is not None else "?"
                 raise Unreachable(f"{cloud} did not answer the {name}: {detail}.")
-            return model.model_validate_json(reply.ok.payload.to_bytes())
+            try:
+                return model.model_validate_json(reply.ok.payload.to_bytes())
+            except pydantic.ValidationError as error:
+                raise Unreachable(f"{cloud} answered the {name} with an invalid reply.") from error
         raise Unreachable(f"{cloud} is not reachable on the overlay.")
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
@@ -284,4 +379,7 @@ class ZenohOverlay:
             state = State.model_validate_json(sample.payload.to_bytes())
         except pydantic.ValidationError:
             return
-        self._watched.accept(state)
+        # A state counts only on its own robot's key (a state for a-1 sent on
+        # b-2's key would otherwise pass for a-1's).
+        if robot_keys.robot_of(str(sample.key_expr)) == state.id:
+            self._watched.accept(state)

@@ -8,11 +8,16 @@ each robot's home: this cloud's store and link for its own robots, the
 overlay for the others.
 
 Without an overlay (``overlay=None``) the view is this cloud alone.
+
+The view remembers the homes it borrowed robots from (``lenders``): once
+this cloud is back after being away, it asks them which of its loans they
+ended meanwhile (``robocloud.iaas.home.Home.reconcile``).
 """
 
 from __future__ import annotations
 
 import logging
+import threading
 import time
 from collections import defaultdict
 from collections.abc import Callable, Iterable, Sequence
@@ -21,7 +26,7 @@ from dataclasses import dataclass, field
 from robocloud.domain import Robot, Task
 from robocloud.errors import RoboCloudError
 from robocloud.federation.messages import Dispatch, IdleQuery, Release, Reservation
-from robocloud.federation.overlay import ZenohOverlay
+from robocloud.federation.overlay import Overlay
 from robocloud.fleet.link import RobotLink, StateListener
 from robocloud.fleet.messages import Ack, Assign
 from robocloud.storage import RequestStore
@@ -29,7 +34,8 @@ from robocloud.storage import RequestStore
 logger = logging.getLogger(__name__)
 
 # A remote reservation is a lease until the request is dispatched: if this
-# cloud dies in between, the home cloud gets its robots back by itself.
+# cloud dies in between, the home cloud gets its robots back by itself. The
+# home grants at most its own maximum.
 LEASE_SECONDS = 15.0
 RESERVATIONS_TTL = 0.25  # seconds a read of the store's reservations serves selections
 
@@ -49,7 +55,7 @@ class FederationView:
         cloud: str,
         store: RequestStore,
         link: RobotLink,
-        overlay: ZenohOverlay | None = None,
+        overlay: Overlay | None = None,
         gather_timeout: float = 0.5,
     ) -> None:
         self.cloud = cloud
@@ -58,6 +64,18 @@ class FederationView:
         self.overlay = overlay
         self.gather_timeout = gather_timeout
         self._reserved: tuple[float, set[str]] | None = None  # (when read, robot ids)
+        self._lenders: set[str] = set()
+        self._lock = threading.Lock()
+
+    def lenders(self) -> list[str]:
+        """The other clouds this one borrowed robots from since it started."""
+        with self._lock:
+            return sorted(self._lenders)
+
+    def _borrowing_from(self, cloud: str) -> None:
+        if cloud != self.cloud:
+            with self._lock:
+                self._lenders.add(cloud)
 
     # -- what a selection sees ------------------------------------------------
 
@@ -124,17 +142,13 @@ class FederationView:
                 taken = self.store.reserve(request_id, ids)
             else:
                 assert self.overlay is not None, "a remote robot without an overlay"
+                self._borrowing_from(cloud)
                 try:
                     reply = self.overlay.reserve(
                         cloud,
-                        Reservation(
-                            origin=self.cloud,
-                            request_id=request_id,
-                            robots=ids,
-                            lease_seconds=LEASE_SECONDS,
-                        ),
+                        Reservation(request_id=request_id, robots=ids, lease_seconds=LEASE_SECONDS),
                     )
-                    taken = reply.taken if reply.error is None else ids
+                    taken = (reply.taken or ids) if reply.error is not None else reply.taken
                 except RoboCloudError:
                     taken = ids
             if taken:
@@ -152,10 +166,8 @@ class FederationView:
             if cloud == self.cloud or self.overlay is None:
                 continue
             try:
-                reply = self.overlay.confirm(
-                    cloud, Reservation(origin=self.cloud, request_id=request_id, robots=ids)
-                )
-                lost += reply.taken
+                reply = self.overlay.confirm(cloud, Reservation(request_id=request_id, robots=ids))
+                lost += (reply.taken or ids) if reply.error is not None else reply.taken
             except RoboCloudError:
                 lost += ids
         return lost
@@ -177,13 +189,15 @@ class FederationView:
         if self.overlay is None:
             return
         try:
-            self.overlay.release(
-                cloud,
-                Release(origin=self.cloud, request_id=request_id, robots=ids, why=why or None),
+            done = self.overlay.release(
+                cloud, Release(request_id=request_id, robots=ids, why=(why or None) and why[:500])
             )
         except RoboCloudError as error:
             # The home reconciles with us when it is back.
             logger.warning("could not release %s at %s: %s", ids, cloud, error)
+            return
+        if not done.ok:
+            logger.warning("%s refused to release %s: %s", cloud, ids, done.error)
 
     # -- commands ---------------------------------------------------------------
 
@@ -192,9 +206,7 @@ class FederationView:
             return self.link.assign(robot, command)
         if self.overlay is None:
             return Ack.refuse(robot, command.request_id, f"{cloud} is not reachable.")
-        ack = self.overlay.dispatch(
-            cloud, Dispatch(origin=self.cloud, robot=robot, command=command)
-        )
+        ack = self.overlay.dispatch(cloud, Dispatch(robot=robot, command=command))
         if ack.ok:
             self.overlay.watch(cloud, robot)
         return ack
@@ -207,8 +219,7 @@ class FederationView:
             return
         try:
             self.overlay.cancel(
-                cloud,
-                Release(origin=self.cloud, request_id=request_id, robots=[robot], why="canceled"),
+                cloud, Release(request_id=request_id, robots=[robot], why="canceled")
             )
         except RoboCloudError as error:
             logger.warning("could not cancel %s at %s: %s", robot, cloud, error)
@@ -216,6 +227,7 @@ class FederationView:
 
     def watch(self, robot: str, cloud: str) -> None:
         if cloud != self.cloud and self.overlay is not None:
+            self._borrowing_from(cloud)
             self.overlay.watch(cloud, robot)
 
     def unwatch(self, robot: str, cloud: str) -> None:

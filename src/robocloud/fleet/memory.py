@@ -94,9 +94,7 @@ class MemoryRobotLink:
                 command, start, metres, metres / state.speed, command.work_time(state.capabilities)
             )
             self._jobs[robot_id] = job
-            self._publish(
-                state, status="busy", task=self._progress(job, "travel"), last_task=None
-            )
+            self._publish(state, status="busy", task=self._progress(job, "travel"), last_task=None)
         return Ack(ok=True, robot=robot_id, request_id=command.request_id)
 
     def cancel(self, robot_id: str, request_id: str) -> Ack:

@@ -42,7 +42,7 @@ from robocloud.federation.view import FederationView
 from robocloud.fleet.link import RobotLink
 from robocloud.iaas.config import Settings
 from robocloud.iaas.docs_ui import install_docs
-from robocloud.iaas.home import Home
+from robocloud.iaas.home import Home, reconcile_period
 from robocloud.iaas.models import (
     ErrorBody,
     Health,
@@ -127,6 +127,8 @@ def create_app(
                 the_link,
                 settings.trusted,
                 api=f"http://{settings.host}:{settings.port}",
+                lease_max=settings.lease_max,
+                origin_deadline=settings.origin_deadline,
             )
             overlay = None
             if session is not None and settings.federation:
@@ -138,13 +140,16 @@ def create_app(
             view = FederationView(
                 settings.cloud, the_store, the_link, overlay, settings.gather_timeout
             )
+            home.lenders = view.lenders
             service = RequestService(settings, the_store, view)
             service.home_info = home.info
             service.lent_for = home.lent_for
             home.origin = service
             await service.start()
             stack.push_async_callback(service.stop)
-            reconciling = asyncio.ensure_future(home.reconcile_forever())
+            reconciling = asyncio.ensure_future(
+                home.reconcile_forever(reconcile_period(settings.origin_deadline))
+            )
             stack.callback(reconciling.cancel)
             app.state.service = service
             app.state.overlay = overlay

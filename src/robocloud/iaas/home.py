@@ -1,16 +1,29 @@
 """What this cloud answers to the other clouds about its own robots (its ``HomeDesk``).
 
 A robot is reserved only at its home: for a request of another cloud (the
-origin) the home keeps a shadow request in its own store, application
-``cloud:<origin>`` and idempotency key the origin's request id, so the
-store's reservations (one robot, one active request) cover the whole
-federation. The home alone talks to its robots: it forwards a dispatch only
-from a trusted cloud, for a robot that cloud holds.
+origin) the home lends it, a row of the store's loans table, so the store's
+one guarantee (one robot, one holder) covers this cloud's requests and its
+loans together. The home alone talks to its robots: it forwards a dispatch
+only for a robot lent to the sender's request.
 
-Shadows end when their robots report done, when the origin cancels or
-releases them, or when reconciliation finds the origin's request over (a
-cloud that was down asks each origin, once it is back, which of its robots
-are still wanted).
+The sender of a command is the cloud named by the key it came on (with
+mutual TLS, the router let only that cloud's certificate send on it), never
+what the payload says. The home enforces the leases:
+
+- a loan starts as a lease the home sets, at most ``lease_max`` seconds
+  whatever the origin asks, and stays a lease until the home forwarded the
+  robot's dispatch (and the robot accepted it); then the origin's confirm
+  makes it firm (it no longer lapses). A confirm without a live lease of the
+  sender's request, or before that dispatch, is refused;
+- a loan ends when its robot reports the task done or failed, when the
+  origin releases or cancels it, when its lease lapses, when the origin says
+  its request is over or no longer uses the robot (``reconcile``, every few
+  seconds), or when the origin stays unreachable ``origin_deadline`` seconds
+  after the robot is idle or done. Then the origin is told once it is back
+  (it asks each home it borrowed from: ``OriginStatus.loan_ended``), and the
+  home logs it at both moments.
+
+Commands that touch another origin's loan are refused and logged as warnings.
 """
 
 from __future__ import annotations
@@ -18,47 +31,97 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import threading
+import time
+from collections import defaultdict
 from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from datetime import datetime, timedelta
 from typing import Protocol
 
 from robocloud.domain import is_final
-from robocloud.errors import Conflict, RoboCloudError, Unavailable
+from robocloud.errors import RoboCloudError, Unavailable
 from robocloud.federation.messages import (
+    MAX_ITEMS,
     CloudInfo,
     Dispatch,
     Done,
     FleetReply,
     IdleQuery,
     IdleReply,
+    LoanNotice,
+    LoanQuery,
+    LoanReply,
     Release,
     RequestStatus,
     Reservation,
     ReserveReply,
     StatusQuery,
+    StatusReply,
 )
-from robocloud.federation.overlay import ZenohOverlay
+from robocloud.federation.overlay import Overlay
 from robocloud.fleet.link import RobotLink
 from robocloud.fleet.messages import Ack, State
-from robocloud.storage import RequestRecord, RequestStore
+from robocloud.storage import Loan, RequestStore
+from robocloud.storage.rules import utc_now
 
 log = logging.getLogger(__name__)
 
-SHADOW_PREFIX = "cloud:"
+LEASE_MAX = 30.0  # seconds: the longest lease this home grants
+ORIGIN_DEADLINE = 60.0  # seconds an origin may stay away once its robot is idle or done
+# A loan this young is not judged by what its origin says: the origin may not
+# have recorded the robot yet (it confirms, then starts following it).
+_SETTLING = 10.0
+# Requests asked about in one status query: the origin reads each from its
+# store, and must answer well within the overlay's timeout, or it would pass
+# for unreachable.
+_STATUS_BATCH = 100
+
+
+def reconcile_period(origin_deadline: float) -> float:
+    """How often ``reconcile`` runs: every 5 s, more often under a short deadline (tests)."""
+    return min(5.0, max(0.2, origin_deadline / 4))
 
 
 class OriginStatus(Protocol):
-    """The origin side: what this cloud says of its own requests."""
+    """The origin side: what this cloud's service says of, and learns about, its own requests."""
 
-    def coalition_robots(self, request_id: str) -> list[str]: ...
+    def coalition_robots(self, request_id: str) -> list[str]:
+        """The robots working for the request now."""
+        ...
+
+    def loan_ended(self, request_id: str, robot: str, home: str, why: str) -> None:
+        """``home`` ended the loan of ``robot`` to the request on its own (this cloud was away).
+
+        Called on a worker thread, at least once per such loan.
+        """
+        ...
 
 
-def is_shadow(record: RequestRecord) -> bool:
-    return record.application.startswith(SHADOW_PREFIX)
+@dataclass(frozen=True)
+class _Lent:
+    """What ``lent_for`` needs of a robot's latest loan, kept in memory.
+
+    An ended loan stays (``active`` false) until the robot's next loan: a
+    stale copy of it, read before it ended, must not bring it back.
+    """
+
+    origin: str
+    request_id: str
+    expires_at: datetime | None
+    version: datetime  # the loan's updated_at: an older write never replaces a newer one
+    active: bool = True
+    firm: bool = False
 
 
-def origin_request(record: RequestRecord) -> str:
-    """The origin's id of the request a shadow stands for."""
-    return str(record.task.get("request_id", ""))
+def _working(state: State | None, request_id: str) -> bool:
+    return (
+        state is not None
+        and state.status != "offline"
+        and state.task is not None
+        and state.task.request_id == request_id
+        and state.task.phase in ("travel", "work")
+    )
 
 
 class Home:
@@ -69,17 +132,48 @@ class Home:
         link: RobotLink,
         trusted: Iterable[str] | None = None,
         api: str | None = None,
+        *,
+        lease_max: float = LEASE_MAX,
+        origin_deadline: float = ORIGIN_DEADLINE,
+        clock: Callable[[], datetime] = utc_now,
+        monotonic: Callable[[], float] = time.monotonic,
     ) -> None:
         self.cloud = cloud
         self.store = store
         self.link = link
         self.trusted = set(trusted) if trusted else None  # None: every cloud
         self.api = api
+        self.lease_max = lease_max
+        self.origin_deadline = origin_deadline
         self.origin: OriginStatus | None = None
-        self.overlay: ZenohOverlay | None = None
+        self.overlay: Overlay | None = None
+        # The homes this cloud borrowed from (robocloud.federation.view.FederationView.lenders).
+        self.lenders: Callable[[], Iterable[str]] = lambda: ()
+        self._clock = clock
+        self._monotonic = monotonic
+        self._started = monotonic()
+        self._lock = threading.Lock()
+        self._lent: dict[str, _Lent] = {}
+        self._away_since: dict[str, float] = {}  # origin -> when it first did not answer
+        self._worked_at: dict[str, float] = {}  # robot -> when last seen working for its loan
+        self._dispatched: set[tuple[str, str]] = set()  # (robot, request): accepted its dispatch
+        for loan in store.loans():
+            self._remember(loan)
         link.on_state(self._on_state)
 
-    # -- HomeDesk -------------------------------------------------------------
+    # -- what the service asks ---------------------------------------------------
+
+    def lent_for(self, robot_id: str) -> str | None:
+        """The origin request the robot is lent for now, or None (from memory: cheap)."""
+        with self._lock:
+            lent = self._lent.get(robot_id)
+        if lent is None or not lent.active:
+            return None
+        if lent.expires_at is not None and lent.expires_at < self._clock():
+            return None
+        return lent.request_id
+
+    # -- questions (anyone may ask) ---------------------------------------------
 
     def info(self) -> CloudInfo:
         robots = self.link.robots()
@@ -103,13 +197,13 @@ class Home:
             and r.battery >= query.min_battery
             and (not wanted or wanted & set(r.capabilities))
         ]
-        return IdleReply(cloud=self.cloud, robots=robots)
+        return IdleReply(cloud=self.cloud, robots=robots[:MAX_ITEMS])
 
     def fleet(self) -> FleetReply:
         held = self.store.reservations()
         states = self.link.states()
         out = []
-        for robot in self.link.robots():
+        for robot in self.link.robots()[:MAX_ITEMS]:
             state = states.get(robot.id)
             status = "reserved" if robot.status == "idle" and robot.id in held else robot.status
             out.append(
@@ -125,199 +219,447 @@ class Home:
             )
         return FleetReply(cloud=self.cloud, robots=out)
 
-    def reserve(self, reservation: Reservation) -> ReserveReply:
-        refusal = self._check(reservation.origin, reservation.robots)
-        if refusal:
-            return ReserveReply(taken=list(reservation.robots), error=refusal)
-        shadow = self._shadow(reservation.origin, reservation.request_id)
-        try:
-            taken = self.store.reserve(shadow.id, reservation.robots, reservation.lease_seconds)
-        except Conflict as error:
-            return ReserveReply(taken=list(reservation.robots), error=error.message)
-        return ReserveReply(taken=taken)
-
-    def confirm(self, reservation: Reservation) -> ReserveReply:
-        refusal = self._check(reservation.origin, reservation.robots)
-        if refusal:
-            return ReserveReply(taken=list(reservation.robots), error=refusal)
-        shadow = self._shadow(reservation.origin, reservation.request_id)
-        try:
-            taken = self.store.confirm(shadow.id, reservation.robots)
-            if not taken and shadow.state == "selecting":
-                self.store.transition(
-                    shadow.id,
-                    "dispatched",
-                    None,
-                    f"robots {', '.join(reservation.robots)} for {reservation.origin}",
+    def status(self, query: StatusQuery) -> StatusReply:
+        """This cloud as the origin: what it says of its requests to a home."""
+        out = []
+        for request_id in query.request_ids:
+            record = self.store.get(request_id)
+            if record is None:
+                out.append(RequestStatus(request_id=request_id, known=False))
+                continue
+            robots = self.origin.coalition_robots(request_id) if self.origin else []
+            out.append(
+                RequestStatus(
+                    request_id=request_id, known=True, final=is_final(record.state), robots=robots
                 )
-        except Conflict as error:
-            return ReserveReply(taken=list(reservation.robots), error=error.message)
+            )
+        return StatusReply(requests=out)
+
+    # -- commands (origin: the sender named by the key) -----------------------------
+
+    def reserve(self, origin: str, reservation: Reservation) -> ReserveReply:
+        refusal = self._check(origin, "reserve", reservation.robots)
+        if refusal:
+            return ReserveReply(taken=list(reservation.robots), error=refusal)
+        lease = min(reservation.lease_seconds or self.lease_max, self.lease_max)
+        taken = self.store.lend(origin, reservation.request_id, reservation.robots, lease)
+        if not taken:
+            self._lent_now(origin, reservation.request_id, reservation.robots, lease)
         return ReserveReply(taken=taken)
 
-    def release(self, release: Release) -> Done:
-        if not self._trusts(release.origin):
-            return Done(ok=False, error=f"{self.cloud} does not trust {release.origin}.")
-        shadow = self._find(release.origin, release.request_id)
-        if shadow is not None:
-            self.store.release(shadow.id, release.robots)
-            self._end_if_empty(shadow.id, "canceled", release.why or "released by the origin")
-        return Done()
-
-    def dispatch(self, dispatch: Dispatch) -> Ack:
-        command = dispatch.command
-        refusal = self._check(dispatch.origin, [dispatch.robot])
+    def confirm(self, origin: str, reservation: Reservation) -> ReserveReply:
+        refusal = self._check(origin, "confirm", reservation.robots)
         if refusal:
-            return Ack.refuse(dispatch.robot, command.request_id, refusal)
-        shadow = self._find(dispatch.origin, command.request_id)
-        held = self.store.reservations(shadow.id) if shadow is not None else {}
-        if dispatch.robot not in held:
-            return Ack.refuse(
-                dispatch.robot,
-                command.request_id,
-                f"robot {dispatch.robot} is not reserved for request "
-                f"{command.request_id} of {dispatch.origin}.",
+            return ReserveReply(taken=list(reservation.robots), error=refusal)
+        request_id, robots = reservation.request_id, reservation.robots
+        if all(self._firm(robot, origin, request_id) for robot in robots):
+            return ReserveReply()  # confirmed already: nothing to write
+        lost = [
+            r for r in robots if self._holder(r) != (origin, request_id) or not self.lent_for(r)
+        ]
+        if not lost:
+            states = self.link.states()
+            waiting = [
+                r
+                for r in robots
+                if (r, request_id) not in self._dispatched
+                and not self._firm(r, origin, request_id)
+                and not _working(states.get(r), request_id)  # (dispatched before a restart)
+            ]
+            if waiting:
+                error = (
+                    f"{self.cloud} forwarded no dispatch of {', '.join(waiting)} for request "
+                    f"{request_id}: a lease turns firm only once its robot was dispatched."
+                )
+                self._refuse(origin, "confirm", request_id, waiting, error)
+                return ReserveReply(taken=waiting, error=error)
+            lost = self.store.confirm_loans(origin, request_id, robots)
+        if lost:
+            error = (
+                f"{self.cloud} has no live lease on {', '.join(lost)} for request {request_id} "
+                f"of {origin}: reserve them first (a lease lapses after at most "
+                f"{self.lease_max:g} s until the dispatch)."
             )
-        return self.link.assign(dispatch.robot, command)
+            self._refuse(origin, "confirm", request_id, lost, error)
+            return ReserveReply(taken=lost, error=error)
+        self._lent_now(origin, request_id, robots, None)
+        return ReserveReply()
 
-    def cancel(self, release: Release) -> Done:
-        if not self._trusts(release.origin):
-            return Done(ok=False, error=f"{self.cloud} does not trust {release.origin}.")
-        shadow = self._find(release.origin, release.request_id)
-        if shadow is None:
-            return Done()
-        robots = release.robots or list(self.store.reservations(shadow.id))
-        for robot in robots:
-            self.link.cancel(robot, release.request_id)
-        self.store.release(shadow.id, robots)
-        self._end_if_empty(shadow.id, "canceled", release.why or "canceled by the origin")
+    def release(self, origin: str, release: Release) -> Done:
+        refusal = self._check(origin, "release", release.robots or [])
+        if refusal:
+            return Done(ok=False, error=refusal)
+        why = release.why or f"released by {origin}"
+        ended = self.store.end_loans(origin, release.request_id, release.robots, why)
+        self._forget(ended)
+        if not ended:
+            return self._nothing_lent(origin, "release", release)
         return Done()
 
-    def status(self, query: StatusQuery) -> RequestStatus:
-        record = self.store.get(query.request_id)
-        if record is None or is_shadow(record):
-            return RequestStatus(request_id=query.request_id, known=False)
-        robots = self.origin.coalition_robots(query.request_id) if self.origin else []
-        return RequestStatus(
-            request_id=query.request_id, known=True, final=is_final(record.state), robots=robots
-        )
+    def dispatch(self, origin: str, dispatch: Dispatch) -> Ack:
+        command = dispatch.command
+        robot, request_id = dispatch.robot, command.request_id
+        refusal = self._check(origin, "dispatch", [robot])
+        if refusal:
+            return Ack.refuse(robot, request_id, refusal)
+        holder = self._holder(robot)
+        if holder != (origin, request_id) or self.lent_for(robot) is None:
+            error = f"robot {robot} is not lent to request {request_id} of {origin}."
+            self._refuse(origin, "dispatch", request_id, [robot], error)
+            return Ack.refuse(robot, request_id, error)
+        ack = self.link.assign(robot, command)
+        if ack.ok:
+            # Now the origin may confirm the lease (firm). Kept in memory, not
+            # written: the origin confirms at once, and the robot's own state
+            # tells the same after a restart of this IaaS.
+            with self._lock:
+                self._dispatched.add((robot, request_id))
+        return ack
 
-    # -- shadows ----------------------------------------------------------------
+    def cancel(self, origin: str, release: Release) -> Done:
+        refusal = self._check(origin, "cancel", release.robots or [])
+        if refusal:
+            return Done(ok=False, error=refusal)
+        request_id = release.request_id
+        lent = self.store.loans(origin, request_id)
+        robots = [
+            loan.robot for loan in lent if release.robots is None or loan.robot in release.robots
+        ]
+        if not robots:
+            self._stop_strays(request_id, release.robots or [])
+            return self._nothing_lent(origin, "cancel", release)
+        for robot in robots:
+            self.link.cancel(robot, request_id)
+        why = release.why or f"canceled by {origin}"
+        self._forget(self.store.end_loans(origin, request_id, robots, why))
+        return Done()
 
-    def _shadow(self, origin: str, request_id: str) -> RequestRecord:
-        """The active shadow of the origin's request, made anew when the last one is over.
-
-        A request may borrow robots of this cloud again after an earlier loan
-        ended (a replacement), so shadows are numbered: key ``<request>#<n>``.
-        """
-        found = self._find(origin, request_id)
-        if found is not None:
-            return found
-        generation = len(self._shadows(origin, request_id)) + 1
-        record, created = self.store.create_request(
-            SHADOW_PREFIX + origin,
-            {"origin": origin, "request_id": request_id},
-            f"{origin}/{request_id}",
-            f"{request_id}#{generation}",
-        )
-        if created:
-            record = self.store.transition(
-                record.id, "selecting", None, f"robots asked for by {origin}"
+    def loans(self, origin: str, query: LoanQuery) -> LoanReply:
+        """What the origin asks once it is back: the loans this home ended without it."""
+        if not self._trusts(origin):
+            return LoanReply(cloud=self.cloud)
+        for loan in self.store.told(origin, query.told):
+            log.info(
+                "%s, back, took in that the loan of %s to request %s ended: %s",
+                origin,
+                loan.robot,
+                loan.request_id,
+                loan.reason,
             )
-        return record
+        ended = [
+            LoanNotice(
+                loan=loan.id,
+                robot=loan.robot,
+                request_id=loan.request_id,
+                why=(loan.reason or "ended by the home")[:500],
+            )
+            for loan in self.store.untold_loans(origin)[:MAX_ITEMS]
+        ]
+        return LoanReply(cloud=self.cloud, held=len(self.store.loans(origin)), ended=ended)
 
-    def _shadows(self, origin: str, request_id: str) -> list[RequestRecord]:
-        records, _ = self.store.list(SHADOW_PREFIX + origin, None, 200, None)
-        return [r for r in records if origin_request(r) == request_id]
-
-    def _find(self, origin: str, request_id: str) -> RequestRecord | None:
-        """The shadow of the origin's request that is not over, if any."""
-        for record in self._shadows(origin, request_id):
-            if not is_final(record.state):
-                return record
-        return None
-
-    def _end_if_empty(self, shadow_id: str, state: str, why: str) -> None:
-        if self.store.reservations(shadow_id):
-            return
-        with contextlib.suppress(Conflict):  # already over
-            self.store.transition(shadow_id, state, None, why)
+    # -- checks ------------------------------------------------------------------------
 
     def _trusts(self, origin: str) -> bool:
         return self.trusted is None or origin in self.trusted or origin == self.cloud
 
-    def _check(self, origin: str, robots: Iterable[str]) -> str | None:
+    def _check(self, origin: str, what: str, robots: Iterable[str]) -> str | None:
+        if not origin:
+            return "a command must come on a key that names its sender."
         if not self._trusts(origin):
-            return f"{self.cloud} does not trust {origin}."
-        known = {r.id for r in self.link.robots()}
+            error = f"{self.cloud} does not trust {origin}."
+            log.warning("refused a %s from %s: %s", what, origin, error)
+            return error
+        known = self.link.states()  # a copy of a dict: cheaper than the robots() list
         unknown = [r for r in robots if r not in known]
         if unknown:
-            return f"{self.cloud} has no robot {', '.join(unknown)}."
+            return f"{self.cloud} has no robot {', '.join(unknown[:10])}."
         return None
 
+    def _refuse(
+        self, origin: str, what: str, request_id: str, robots: Iterable[str], error: str
+    ) -> None:
+        """Log a refused command: a warning when it touched another origin's loan."""
+        others = {
+            robot: holder
+            for robot in robots
+            if (holder := self._holder(robot)) is not None and holder[0] != origin
+        }
+        if others:
+            log.warning(
+                "refused a %s from %s for request %s: %s is lent to %s",
+                what,
+                origin,
+                request_id,
+                ", ".join(others),
+                ", ".join(sorted({f"{o}'s request {r}" for o, r in others.values()})),
+            )
+        else:
+            log.info("refused a %s from %s: %s", what, origin, error)
+
+    def _stop_strays(self, request_id: str, robots: Iterable[str]) -> None:
+        """Stop robots that still work for a request although no loan holds them any more.
+
+        A loan the home ended while its robot could not hear the cancel (it was
+        silent) leaves the robot working; the origin's cancel stops it then.
+        Only a robot no loan holds, and only from that request.
+        """
+        states = self.link.states()
+        for robot in robots:
+            if self._holder(robot) is None and _working(states.get(robot), request_id):
+                log.info("stopping %s, which still works for request %s", robot, request_id)
+                self.link.cancel(robot, request_id)
+
+    def _nothing_lent(self, origin: str, what: str, release: Release) -> Done:
+        """A release or cancel that ended nothing: harmless, unless it aimed at another's loans."""
+        aimed = [
+            loan
+            for loan in self.store.loans(request_id=release.request_id)
+            if loan.origin != origin and (release.robots is None or loan.robot in release.robots)
+        ]
+        aimed += [
+            loan
+            for robot in release.robots or []
+            if (loan := self.store.loan_of(robot)) is not None
+            and loan.origin != origin
+            and loan not in aimed
+        ]
+        if not aimed:
+            return Done()  # already released: repeating it is harmless
+        robots = ", ".join(sorted({loan.robot for loan in aimed}))
+        log.warning(
+            "refused a %s from %s for request %s: %s is lent to %s",
+            what,
+            origin,
+            release.request_id,
+            robots,
+            ", ".join(sorted({loan.origin for loan in aimed})),
+        )
+        return Done(
+            ok=False,
+            error=f"{origin} holds no loan of {robots} for request {release.request_id}.",
+        )
+
+    # -- the loans in memory (lent_for) ---------------------------------------------
+
+    def _holder(self, robot: str) -> tuple[str, str] | None:
+        with self._lock:
+            lent = self._lent.get(robot)
+        return None if lent is None or not lent.active else (lent.origin, lent.request_id)
+
+    def _firm(self, robot: str, origin: str, request_id: str) -> bool:
+        """Whether the robot is firmly lent to this origin request (from memory)."""
+        with self._lock:
+            lent = self._lent.get(robot)
+        return (
+            lent is not None
+            and lent.active
+            and lent.firm
+            and (lent.origin, lent.request_id) == (origin, request_id)
+        )
+
+    def _remember(self, loan: Loan) -> None:
+        with self._lock:
+            known = self._lent.get(loan.robot)
+            if known is not None and known.version > loan.updated_at:
+                return
+            self._lent[loan.robot] = _Lent(
+                loan.origin,
+                loan.request_id,
+                loan.expires_at,
+                loan.updated_at,
+                loan.active,
+                loan.state == "firm",
+            )
+
+    def _lent_now(
+        self, origin: str, request_id: str, robots: Iterable[str], lease: float | None
+    ) -> None:
+        """What the store just committed (a lease, or firm with None), without reading it back.
+
+        Stamped with this moment, later than the store's own: a copy of the
+        loan read before the write cannot replace it. A lease's end is
+        reckoned from now too, a little later than the store's: ``lent_for``
+        may say lent a few milliseconds past the lapse, never the reverse
+        for a loan the store still holds.
+        """
+        now = self._clock()
+        with self._lock:
+            for robot in robots:
+                known = self._lent.get(robot)
+                expires_at = None if lease is None else now + timedelta(seconds=lease)
+                if (
+                    lease is not None
+                    and known is not None
+                    and known.active
+                    and (known.origin, known.request_id) == (origin, request_id)
+                ):
+                    if known.firm:
+                        continue  # a firm loan stays firm
+                    if known.expires_at is not None and expires_at is not None:
+                        expires_at = max(expires_at, known.expires_at)
+                self._lent[robot] = _Lent(origin, request_id, expires_at, now, True, lease is None)
+
+    def _forget(self, ended: Iterable[Loan]) -> None:
+        for loan in ended:
+            self._remember(loan)
+            self._worked_at.pop(loan.robot, None)
+            with self._lock:
+                self._dispatched.discard((loan.robot, loan.request_id))
+
     def _on_state(self, state: State) -> None:
-        """A robot working for another cloud finished: give it back to this cloud."""
+        """A lent robot finished its task: the loan ends and the robot is this cloud's again."""
         task = state.task
         if task is None or task.phase not in ("done", "failed"):
             return
-        held = self.store.reservations()
-        shadow_id = held.get(state.id)
-        if shadow_id is None:
+        holder = self._holder(state.id)
+        if holder is None or holder[1] != task.request_id:
             return
-        record = self.store.get(shadow_id)
-        if record is None or not is_shadow(record) or origin_request(record) != task.request_id:
-            return
-        self.store.release(shadow_id, [state.id])
-        self._end_if_empty(
-            shadow_id,
-            "completed" if task.phase == "done" else "failed",
-            "its robots finished" if task.phase == "done" else f"robot {state.id} failed",
-        )
+        why = "its task is done" if task.phase == "done" else f"robot {state.id} failed"
+        try:
+            self._forget(self.store.end_loans(holder[0], task.request_id, [state.id], why))
+        except RoboCloudError:
+            log.exception("could not end the loan of %s", state.id)
 
-    def lent_for(self, robot_id: str) -> str | None:
-        """The origin's request id this robot is lent to now, None when it is not lent."""
-        shadow_id = self.store.reservations().get(robot_id)
-        record = self.store.get(shadow_id) if shadow_id is not None else None
-        if record is None or not is_shadow(record) or is_final(record.state):
-            return None
-        return origin_request(record)
-
-    # -- reconciliation --------------------------------------------------------
+    # -- reconciliation ------------------------------------------------------------
 
     def reconcile(self) -> None:
-        """Ask each origin which of this cloud's robots it still wants; free the others."""
+        """Loans whose lease lapsed, origins asked about their loans, this cloud's own loans."""
+        self._forget(self.store.lapse_loans())
         if self.overlay is None:
             return
-        for record in self.store.active():
-            if not is_shadow(record):
-                continue
-            if record.state != "dispatched":
-                # Leases not yet confirmed lapse by themselves.
-                self._end_if_empty(record.id, "canceled", "the lease lapsed")
-                continue
-            origin = record.application.removeprefix(SHADOW_PREFIX)
-            request_id = origin_request(record)
-            try:
-                status = self.overlay.status(
-                    origin, StatusQuery(home=self.cloud, request_id=request_id)
-                )
-            except RoboCloudError:
-                continue  # the origin is away; ask again later
-            held = list(self.store.reservations(record.id))
-            if not status.known or status.final:
-                for robot in held:
-                    self.link.cancel(robot, request_id)
-                self.store.release(record.id, None)
-                self._end_if_empty(record.id, "canceled", f"{origin} says the request is over")
-                continue
-            unwanted = [r for r in held if r not in status.robots]
-            if unwanted:
-                self.store.release(record.id, unwanted)
-                self.store.add_event(record.id, f"{origin} no longer uses {', '.join(unwanted)}")
-                self._end_if_empty(record.id, "canceled", f"{origin} no longer uses them")
+        self._ask_origins(self.overlay)
+        self._ask_lenders(self.overlay)
 
-    async def reconcile_forever(
-        self, every: float = 5.0, sleep: Callable[[float], object] = asyncio.sleep
-    ) -> None:
+    def _ask_origins(self, overlay: Overlay) -> None:
+        """Ask each origin about its requests; end the loans it no longer uses, or waited out."""
+        now = self._monotonic()
+        states = self.link.states()
+        silent = {robot.id for robot in self.link.robots() if robot.status == "offline"}
+        by_origin: dict[str, list[Loan]] = defaultdict(list)
+        for loan in self.store.loans():
+            if loan.robot not in silent and _working(states.get(loan.robot), loan.request_id):
+                self._worked_at[loan.robot] = now
+            # Leases not yet dispatched lapse by themselves.
+            if loan.expires_at is None:
+                by_origin[loan.origin].append(loan)
+        for origin in sorted(set(self._away_since) - set(by_origin)):
+            self._probe(overlay, origin)
+        for origin, loans in by_origin.items():
+            request_ids = sorted({loan.request_id for loan in loans})
+            try:
+                statuses: dict[str, RequestStatus] = {}
+                for start in range(0, len(request_ids), _STATUS_BATCH):
+                    query = StatusQuery(
+                        home=self.cloud, request_ids=request_ids[start : start + _STATUS_BATCH]
+                    )
+                    for status in overlay.status(origin, query).requests:
+                        statuses[status.request_id] = status
+            except RoboCloudError:
+                self._away(origin, loans, now)
+                continue
+            self._back(origin)
+            self._apply(origin, loans, statuses)
+
+    def _away(self, origin: str, loans: list[Loan], now: float) -> None:
+        """The origin did not answer: end the loans idle for longer than the deadline."""
+        since = self._away_since.setdefault(origin, now)
+        if since == now:
+            log.warning("%s does not answer; its %d loans wait for it", origin, len(loans))
+        for loan in loans:
+            idle_since = max(since, self._worked_at.get(loan.robot, self._started))
+            if now - idle_since < self.origin_deadline:
+                continue
+            why = (
+                f"{origin} was unreachable for {self.origin_deadline:g} s "
+                f"while robot {loan.robot} was idle or done"
+            )
+            self.link.cancel(loan.robot, loan.request_id)  # harmless when it has no task
+            ended = self.store.end_loans(
+                origin, loan.request_id, [loan.robot], why, tell_origin=True
+            )
+            self._forget(ended)
+            if ended:
+                log.warning(
+                    "ended the loan of %s to %s's request %s: %s",
+                    loan.robot,
+                    origin,
+                    loan.request_id,
+                    why,
+                )
+
+    def _probe(self, overlay: Overlay, origin: str) -> None:
+        """An origin away with no loan left here: is it back, to be told of its ended loans?"""
+        untold = self.store.untold_loans(origin)
+        if not untold:
+            self._away_since.pop(origin, None)
+            return
+        request_ids = sorted({loan.request_id for loan in untold})[:MAX_ITEMS]
+        try:
+            overlay.status(origin, StatusQuery(home=self.cloud, request_ids=request_ids))
+        except RoboCloudError:
+            return
+        self._back(origin)
+
+    def _back(self, origin: str) -> None:
+        if self._away_since.pop(origin, None) is None:
+            return
+        untold = self.store.untold_loans(origin)
+        if untold:
+            log.warning(
+                "%s is back; %d of its loans ended while it was away (%s); it is told when it asks",
+                origin,
+                len(untold),
+                ", ".join(sorted({loan.robot for loan in untold})),
+            )
+        else:
+            log.info("%s is back", origin)
+
+    def _apply(self, origin: str, loans: list[Loan], statuses: dict[str, RequestStatus]) -> None:
+        """End the loans the origin no longer uses (not the youngest: it may not know them yet)."""
+        settled = self._clock().timestamp() - _SETTLING
+        by_request: dict[str, list[str]] = defaultdict(list)
+        for loan in loans:
+            if loan.updated_at.timestamp() < settled:
+                by_request[loan.request_id].append(loan.robot)
+        for request_id, robots in by_request.items():
+            status = statuses.get(request_id)
+            if status is None:
+                continue  # not answered: ask again next time
+            if not status.known or status.final:
+                for robot in robots:
+                    self.link.cancel(robot, request_id)
+                why = f"{origin} says request {request_id} is over"
+                self._forget(self.store.end_loans(origin, request_id, robots, why))
+                continue
+            unwanted = [r for r in robots if r not in status.robots]
+            if unwanted:
+                why = f"{origin} no longer uses them"
+                self._forget(self.store.end_loans(origin, request_id, unwanted, why))
+
+    def _ask_lenders(self, overlay: Overlay) -> None:
+        """This cloud as the origin: learn which of its loans the homes ended while it was away."""
+        for home in sorted(set(self.lenders()) - {self.cloud}):
+            try:
+                reply = overlay.loans(home, LoanQuery())
+            except RoboCloudError:
+                continue
+            if not reply.ended:
+                continue
+            for notice in reply.ended:
+                log.warning(
+                    "%s ended the loan of %s to request %s: %s",
+                    home,
+                    notice.robot,
+                    notice.request_id,
+                    notice.why,
+                )
+                if self.origin is not None:
+                    self.origin.loan_ended(notice.request_id, notice.robot, home, notice.why)
+            # Not told back: the home tells again next time; taking it in twice is harmless.
+            with contextlib.suppress(RoboCloudError):
+                overlay.loans(home, LoanQuery(told=[notice.loan for notice in reply.ended]))
+
+    async def reconcile_forever(self, every: float = 5.0) -> None:
         while True:
             try:
                 await asyncio.to_thread(self.reconcile)

@@ -221,6 +221,7 @@ class LoanEnded:
     """A robot's home ended its loan to this request (e.g. this cloud was unreachable)."""
 
     robot: str
+    home: str
     why: str
 
 
@@ -555,9 +556,15 @@ def _on_cancel(life: Life, event: CancelAsked, now: Now) -> Step:
 
 
 def _on_loan_ended(life: Life, event: LoanEnded, now: Now) -> Step:
-    if life.final or event.robot not in life.members:
+    if life.final:
         return life, []
-    return _member_failed(life, event.robot, event.why, now)
+    note: list[Effect] = [Note(loan_ended_note(event.robot, event.home, event.why))]
+    if event.robot not in life.members:
+        return life, note
+    life, effects = _member_failed(
+        life, event.robot, f"its home {event.home} ended the loan", now
+    )
+    return life, note + effects
 
 
 def _on_crashed(life: Life, event: Crashed, now: Now) -> Step:
@@ -738,6 +745,10 @@ def _with(life: Life, member: Member) -> Life:
 
 def _pairs(members: Iterable[Member]) -> Pairs:
     return tuple(m.pair for m in members)
+
+
+def loan_ended_note(robot: str, home: str, why: str) -> str:
+    return f"{home} ended the loan of robot {robot}: {why}"
 
 
 def missing_capabilities(task: Task, members: Iterable[Member]) -> dict[str, int]:

@@ -101,7 +101,8 @@ class RobotPublic(BaseModel):
     status: str
     capabilities: list[str]
     capability_kinds: dict[str, str] = Field(
-        default_factory=dict, description="capability name -> sensing or actuating")
+        default_factory=dict, description="capability name -> sensing or actuating"
+    )
     request: str | None = Field(None, description="the request the robot is reserved for")
     progress: Progress | None = None
     seen_ago: float | None = Field(None, description="seconds since its last state message")

@@ -15,6 +15,7 @@ most once a second while it keeps at it.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import re
 import time
@@ -23,8 +24,16 @@ from concurrent.futures import ThreadPoolExecutor
 from functools import partial
 from typing import Any, TypeVar
 
+from pydantic import ValidationError
+
 from robocloud.domain import Robot, Task, is_final
-from robocloud.errors import Conflict, InvalidInput, NotFound, Unavailable
+from robocloud.errors import (
+    Conflict,
+    InvalidInput,
+    NotFound,
+    Unavailable,
+    describe_validation_errors,
+)
 from robocloud.federation.messages import CloudInfo
 from robocloud.federation.view import FederationView
 from robocloud.fleet.messages import State
@@ -272,11 +281,29 @@ class RequestService:
                     del self._listeners[request_id]
 
     def loan_ended(self, request_id: str, robot: str, home: str, why: str) -> None:
-        """A robot's home ended its loan to one of our requests (called on any thread)."""
-        if self._loop is None:
+        """A robot's home ended its loan to one of our requests on its own (any thread).
+
+        ``robocloud.iaas.home.OriginStatus``: maybe called twice for one loan.
+        The request's history says so, and a robot still in its coalition is
+        treated as failed (replaced, or the request fails).
+        """
+        if self._loop is not None:
+            self._loop.call_soon_threadsafe(self._loan_ended, request_id, robot, home, why)
+
+    def _loan_ended(self, request_id: str, robot: str, home: str, why: str) -> None:
+        actor = self._actors.get(request_id)
+        if actor is not None:
+            actor.post(lc.LoanEnded(robot, home, why))
             return
-        event = lc.LoanEnded(robot, f"its home {home} ended the loan: {why}")
-        self._loop.call_soon_threadsafe(self._post, request_id, event)
+
+        async def note() -> None:  # the request is over: only its history learns it
+            with contextlib.suppress(NotFound):
+                record = await self.in_store(
+                    self.store.add_event, request_id, lc.loan_ended_note(robot, home, why)
+                )
+                self._publish(record)
+
+        self._spawn(note(), f"noting the end of the loan of {robot}")
 
     # -- followers, routes and robots' reports ------------------------------------------
 
@@ -381,15 +408,21 @@ class RequestService:
     async def _recover(self) -> None:
         """Resume what a previous run of this IaaS left unfinished."""
         for record in await self.in_store(self.store.active):
-            if record.application.startswith("cloud:"):
-                continue  # another cloud's request this cloud lends robots to (iaas.home)
-            life = lc.life_of(
-                record.id,
-                Task.model_validate(record.task),
-                record.state,
-                record.selection,
-                self._shell.rules,
-            )
+            try:
+                task = Task.model_validate(record.task)
+            except ValidationError as error:
+                # Stored by another version, or edited by hand: say so, and go on.
+                why = describe_validation_errors(error.errors(), "task").message
+                log.error("request %s cannot be resumed: %s", record.id, why)
+                with contextlib.suppress(Conflict, NotFound):
+                    await self.in_store(
+                        self.store.transition,
+                        record.id,
+                        "failed",
+                        f"it could not be resumed after a restart: its stored {why}",
+                    )
+                continue
+            life = lc.life_of(record.id, task, record.state, record.selection, self._shell.rules)
             self._start(record, life, lc.Start(resumed=True))
 
 

@@ -5,39 +5,60 @@ solution may not be the best among all solutions". This module returns the
 true front over all filtered candidates, so it is both the quality reference
 for MOPSO and the better answer wherever it is fast.
 
-How: T is a maximum, C and N are sums, and coverage only counts up to each
-required count. Taking robots in order of their time t_i, the robot taken last
-fixes T of every coalition it closes. A dynamic program over (size, capped
-coverage) keeps the cheapest partial coalition for each pair; each robot
-extends every kept partial coalition once (a 0/1 knapsack), and a coalition
-that reaches full coverage is a front candidate with T = t_i.
+How: an epsilon-constraint sweep over T. T is a maximum, so "T <= tau" only
+says which robots may be used: a prefix of the candidates in time order.
+For a size limit n, the sweep starts with every robot allowed, asks
+:mod:`robocloud.selection.covering` for the cheapest coalitions of at most n
+robots (every tie), keeps the fastest of them, then allows only robots
+strictly faster than it and asks again, until no coalition is left or the
+cheapest one breaks max_cost. Each answer is the cheapest coalition for its
+time limit, so the points found are the (T, C) front for sizes up to n.
+
+Sizes: the first sweep takes n = the largest useful coalition. A later sweep
+with a smaller n would only differ where a point used more than n robots, so
+the next sweep takes n = (the largest size seen) - 1, until a sweep finds
+nothing. The union of the sweeps holds the whole (T, C, N) front: a front
+point of size N is on the (T, C) front of sizes up to N, which the sweep
+that covered N found. The cost of each step grows with the number of
+capability classes and the coalition's size, not with the product of the
+counts; how many steps there are is the front's size, measured in
+benchmarks/.
 
 Before that, dominance pruning removes robots that no Pareto-optimal
 coalition can hold (see ``prune``), which is what makes 100,000 robots cheap.
+
+A deadline can cut the sweep. The result then holds every point found so
+far and a certified bound (``Bound``): every feasible coalition is matched by
+a found one that is at most ``time`` seconds slower, ``cost`` dearer and
+``size`` robots larger.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from robocloud.domain import Coalition
-from robocloud.domain.numeric import ABS_TOL, REL_TOL, isclose, less
+from robocloud.domain.numeric import ABS_TOL, REL_TOL
+from robocloud.selection.budget import NO_DEADLINE, Deadline
+from robocloud.selection.covering import CoverResult, CoverSolver
 from robocloud.selection.pareto import pareto_front
 from robocloud.selection.problem import CoalitionProblem, IntArray
 
 _BLOCK = 128
+# Dominance pruning compares each class with its superset classes; past this
+# many classes it is skipped (the covering step's own per-class pruning still
+# applies), so a fleet with every capability combination stays linear.
+PRUNE_CLASSES = 256
+# The robot ids the found coalitions may hold in total before the sweep stops
+# as if its budget had run out: memory stays bounded whatever the counts.
+MAX_FOUND_MEMBERS = 2_000_000
 
 
 def _tolerance(value: float) -> float:
     return max(ABS_TOL, REL_TOL * abs(value))
-
-
-def masks_of(problem: CoalitionProblem) -> IntArray:
-    """Each candidate's U_i as a bit mask over the required capabilities."""
-    bits = np.left_shift(1, np.arange(len(problem.capabilities), dtype=np.int64))
-    return np.asarray(problem.uses.astype(np.int64) @ bits, dtype=np.int64)
 
 
 def within_thresholds(problem: CoalitionProblem) -> IntArray:
@@ -65,21 +86,29 @@ def prune(problem: CoalitionProblem) -> IntArray:
     prunes a little less than possible and never too much.
     """
     keep = within_thresholds(problem)
+    keep = keep[problem.uses[keep].any(axis=1)] if keep.size else keep
     if keep.size == 0:
-        return keep
+        return keep.astype(np.int64)
     limit = problem.largest_useful_coalition
     order = keep[
         np.lexsort(
             (np.array(problem.ids, dtype=object)[keep], problem.cost[keep], problem.time[keep])
         )
     ]
-    masks = masks_of(problem)[order]
+    uses = problem.uses[order]
+    classes, member = np.unique(uses, axis=0, return_inverse=True)
+    member = member.reshape(-1)
+    if len(classes) > PRUNE_CLASSES or limit < 1:
+        return np.asarray(order, dtype=np.int64)
     cost = problem.cost[order]
     margin = _tolerance(problem.max_cost)
     survives = np.zeros(order.size, dtype=bool)
-    for mask in np.unique(masks):
-        supersets = np.flatnonzero((masks & mask) == mask)
-        own = masks[supersets] == mask
+    for m, mask in enumerate(classes):
+        supersets = np.flatnonzero(uses[:, mask].all(axis=1))
+        own = member[supersets] == m
+        if supersets.size <= limit:
+            survives[supersets[own]] = True
+            continue
         c = cost[supersets]
         n_blocks = -(-c.size // _BLOCK)
         padded = np.full(n_blocks * _BLOCK, np.inf)
@@ -91,157 +120,257 @@ def prune(problem: CoalitionProblem) -> IntArray:
         kth = np.full(n_blocks, np.inf)
         running = np.full(limit, np.inf)
         for b in range(n_blocks):
+            # ``running`` holds the limit smallest so far, partitioned: the
+            # limit-th smallest at its end, no full sort needed.
             kth[b] = running[limit - 1]
             merged = np.concatenate((running, block_smallest[b]))
-            running = np.sort(np.partition(merged, limit - 1)[:limit])
+            running = np.partition(merged, limit - 1)[:limit]
         dominated = kth[np.arange(c.size) // _BLOCK] < c - margin
         survives[supersets[own & ~dominated]] = True
     return np.asarray(order[survives], dtype=np.int64)
 
 
 @dataclass(frozen=True)
-class _Coverage:
-    """Capped coverage vectors encoded as integers in a mixed radix."""
+class Bound:
+    """How far a found front can be from the true one, per objective.
 
-    need: tuple[int, ...]
-    stride: tuple[int, ...]
-    states: int
+    Every feasible coalition is matched by a found coalition that is at most
+    ``time`` seconds slower, ``cost`` dearer and ``size`` robots larger (an
+    additive epsilon-dominance). All zero (up to the tolerance) when the
+    front is exact.
+    """
 
-    @classmethod
-    def of(cls, need: IntArray) -> _Coverage:
-        stride, states = [], 1
-        for q in need:
-            stride.append(states)
-            states *= int(q) + 1
-        return cls(tuple(int(q) for q in need), tuple(stride), states)
+    time: float
+    cost: float
+    size: int
 
     @property
-    def full(self) -> int:
-        return self.states - 1
-
-    def transitions(self, mask: int) -> IntArray:
-        """For every state, the state after adding a robot with ``mask``."""
-        state = np.arange(self.states, dtype=np.int64)
-        after = np.zeros_like(state)
-        for k, (q, stride) in enumerate(zip(self.need, self.stride, strict=True)):
-            digit = (state // stride) % (q + 1)
-            if mask >> k & 1:
-                digit = np.minimum(digit + 1, q)
-            after += digit * stride
-        return after
+    def exact(self) -> bool:
+        return self.time <= ABS_TOL and self.cost <= ABS_TOL and self.size == 0
 
 
-def exact_work(problem: CoalitionProblem, survivors: IntArray | None = None) -> int:
-    """The dynamic program's size: robots x coverage states x sizes."""
-    if survivors is None:
-        survivors = prune(problem)
-    states = _Coverage.of(problem.need).states
-    return int(survivors.size) * states * (problem.largest_useful_coalition + 1)
+EXACT = Bound(0.0, 0.0, 0)
+
+
+@dataclass(frozen=True)
+class ExactOutcome:
+    """The front found; ``complete`` when it is the whole true front.
+
+    ``bound`` is None only when the search was cut before any feasible
+    coalition was found: then nothing is known but the lack of time.
+    """
+
+    front: list[Coalition]
+    complete: bool
+    bound: Bound | None
+    steps: int  # covering problems solved
+    nodes: int  # branch-and-bound nodes over all of them
+
+
+def lower_bounds(problem: CoalitionProblem, robots: IntArray) -> tuple[float, int]:
+    """(T, N) no feasible coalition of ``robots`` can go below; cheap and sound.
+
+    T: every capability k needs need_k carriers, so T is at least the
+    need_k-th smallest t_i among the carriers of k. N: at least the largest
+    count, and at least the fewest robots whose capability counts add up to
+    the sum of the counts (one robot brings each of its capabilities once).
+    """
+    uses = problem.uses[robots]
+    need = problem.need
+    fastest = 0.0
+    for k, q in enumerate(need.tolist()):
+        carriers = np.sort(problem.time[robots[uses[:, k]]])
+        if carriers.size < q:
+            return math.inf, problem.largest_useful_coalition + 1
+        fastest = max(fastest, float(carriers[q - 1]))
+    brought = np.sort(uses.sum(axis=1))[::-1]
+    reach = np.cumsum(brought)
+    total = int(need.sum())
+    fewest = int(np.searchsorted(reach, total, side="left")) + 1
+    return fastest, max(fewest, int(need.max(initial=0)))
+
+
+def exact_search(
+    problem: CoalitionProblem,
+    survivors: IntArray | None = None,
+    deadline: Deadline = NO_DEADLINE,
+) -> ExactOutcome:
+    """The Pareto front of MODEL.md over all of ``problem``'s candidates, within ``deadline``."""
+    keep = prune(problem) if survivors is None else survivors
+    largest = problem.largest_useful_coalition
+    if keep.size == 0 or largest < 1:
+        return ExactOutcome([], True, EXACT, 0, 0)
+    solver = CoverSolver(problem, keep, deadline)
+    sweep = _Sweep(problem, solver, deadline)
+    return sweep.run(largest, keep)
 
 
 def exact_front(problem: CoalitionProblem, survivors: IntArray | None = None) -> list[Coalition]:
-    """The Pareto front of MODEL.md over all of ``problem``'s candidates."""
-    if survivors is None:
-        survivors = prune(problem)
-    coverage = _Coverage.of(problem.need)
-    limit = problem.largest_useful_coalition
-    # Ties between equal costs go to the lexicographically smaller sorted id
-    # list; comparing tuples of id ranks compares those lists.
-    id_rank = {i: r for r, i in enumerate(sorted(survivors.tolist(), key=lambda i: problem.ids[i]))}
-    masks = masks_of(problem)
-    transitions: dict[int, IntArray] = {}
-    # (size, coverage state) -> (cost, id ranks sorted, robot indices)
-    table: dict[tuple[int, int], tuple[float, tuple[int, ...], tuple[int, ...]]] = {
-        (0, 0): (0.0, (), ())
-    }
-    best_upto = np.full(limit + 1, np.inf)  # cheapest full coalition of size <= n so far
-    found: list[Coalition] = []
-    for i in survivors.tolist():
-        mask = int(masks[i])
-        step = transitions.get(mask)
-        if step is None:
-            step = transitions[mask] = coverage.transitions(mask)
-        c_i, r_i = float(problem.cost[i]), id_rank[i]
-        closed: dict[int, tuple[float, tuple[int, ...], tuple[int, ...]]] = {}
-        for (n, state), (cost, ranks, members) in list(table.items()):
-            if n >= limit:
-                continue
-            new_cost = cost + c_i
-            if new_cost > problem.max_cost + _tolerance(problem.max_cost):
-                continue
-            entry = (new_cost, tuple(sorted((*ranks, r_i))), (*members, i))
-            target = int(step[state])
-            if target == coverage.full:
-                _keep_better(closed, n + 1, entry)
-            elif target != state and n + 1 < limit:
-                # A robot that adds no coverage is redundant, and a partial
-                # coalition at the size limit can never be completed.
-                _keep_better(table, (n + 1, target), entry)
-        for n, (cost, _, members) in sorted(closed.items()):
-            if cost > best_upto[n] + _tolerance(best_upto[n] if np.isfinite(best_upto[n]) else 0):
-                continue  # an earlier, no slower coalition is cheaper and no larger
-            best_upto[n:] = np.minimum(best_upto[n:], cost)
-            found.append(problem.coalition(members))
-    return pareto_front(found)
+    """The whole Pareto front, however long it takes."""
+    return exact_search(problem, survivors).front
 
 
-def _keep_better(
-    table: dict[tuple[int, int], tuple[float, tuple[int, ...], tuple[int, ...]]]
-    | dict[int, tuple[float, tuple[int, ...], tuple[int, ...]]],
-    key: object,
-    entry: tuple[float, tuple[int, ...], tuple[int, ...]],
-) -> None:
-    old = table.get(key)  # type: ignore[call-overload]
-    if old is None or less(entry[0], old[0]) or (isclose(entry[0], old[0]) and entry[1] < old[1]):
-        table[key] = entry  # type: ignore[index]
+class _Sweep:
+    def __init__(self, problem: CoalitionProblem, solver: CoverSolver, deadline: Deadline):
+        self.problem = problem
+        self.solver = solver
+        self.deadline = deadline
+        self.found: list[Coalition] = []
+        self.members = 0
+        self.steps = 0
+        self.nodes = 0
+
+    def _affordable(self, cost: float) -> bool:
+        return cost <= self.problem.max_cost + _tolerance(cost)
+
+    def _keep(self, result: CoverResult, fastest: float | None) -> tuple[float, int]:
+        """Record the fastest cheapest coalitions of ``result``: (their T, largest N)."""
+        solver = self.solver
+        times = [solver.fastest(x) for x in result.ties]
+        limit = min(times) if fastest is None else fastest
+        largest = 0
+        for x, t in zip(result.ties, times, strict=True):
+            if t > limit + _tolerance(limit):
+                continue
+            members = solver.coalition(x, limit)
+            if members is None:
+                continue
+            coalition = self.problem.coalition(members)
+            if not self._affordable(coalition.cost):
+                continue
+            self.found.append(coalition)
+            self.members += coalition.size
+            largest = max(largest, coalition.size)
+        return limit, largest
+
+    def run(self, largest: int, keep: IntArray) -> ExactOutcome:
+        size_limit = largest
+        previous_top = 0
+        # The steps of the last sweep: a sweep with a smaller size limit
+        # repeats them for as long as their answers fit that limit (their ties
+        # of at most n robots are then exactly its ties), and only solves
+        # afresh from the first step where they no longer do.
+        history: list[CoverResult] = []
+        while size_limit >= 1:
+            self.solver.allow_all()
+            top = 0
+            last_time: float | None = None
+            replay, history = history, []
+            while True:
+                if self.deadline.expired() or self.members >= MAX_FOUND_MEMBERS:
+                    return self._cut(keep, last_time, previous_top, None)
+                result = self._replayed(replay, len(history), size_limit)
+                if result is None:
+                    replay = []
+                    result = self.solver.solve(size_limit)
+                    self.steps += 1
+                    self.nodes += result.nodes
+                if result.status == "cut":
+                    return self._cut(keep, last_time, previous_top, result)
+                if result.status == "infeasible" or not self._affordable(result.cost):
+                    break
+                history.append(result)
+                last_time, biggest = self._keep(result, None)
+                top = max(top, biggest)
+                self.solver.allow_faster_than(last_time)
+            if top == 0:
+                break
+            previous_top = top
+            size_limit = top - 1
+        return ExactOutcome(pareto_front(self.found), True, EXACT, self.steps, self.nodes)
+
+    @staticmethod
+    def _replayed(replay: list[CoverResult], step: int, size_limit: int) -> CoverResult | None:
+        """The earlier sweep's answer at this step, narrowed to ``size_limit``, if it holds."""
+        if step >= len(replay):
+            return None
+        earlier = replay[step]
+        ties = tuple(x for x in earlier.ties if int(x.sum()) <= size_limit)
+        if not ties:
+            return None
+        return CoverResult("optimal", earlier.cost, ties, earlier.cost, 0)
+
+    def _cut(
+        self,
+        keep: IntArray,
+        last_time: float | None,
+        previous_top: int,
+        partial: CoverResult | None,
+    ) -> ExactOutcome:
+        """The front found so far and its certified distance from the true one.
+
+        Say the sweep with size limit n was cut. A feasible coalition S of
+        more than n robots was allowed at some step of an earlier, complete
+        sweep, whose answer is no dearer, at most the tolerance slower and
+        no larger. One of at most n robots allowed at a finished step of this
+        sweep is matched the same way, except in size. One allowed at the
+        step that was cut costs at least as much as the last answer of this
+        sweep, which is then at most (its T - the least T of any coalition)
+        slower; with no answer yet in this sweep, the earlier sweep covers S
+        again, or else the best coalition the cut step found does, with its
+        gap to the step's lower bound. In size, every found coalition is at
+        most (its N - the least N of any coalition) larger.
+        """
+        problem = self.problem
+        least_time, least_size = lower_bounds(problem, keep)
+        slower = 0.0
+        dearer = 0.0
+        if last_time is not None:
+            slower = max(0.0, last_time - least_time)
+        elif previous_top == 0:
+            # The first sweep, cut at its first step.
+            if partial is not None and partial.ties and self._affordable(partial.cost):
+                t, _ = self._keep(partial, None)
+                slower = max(0.0, t - least_time)
+                dearer = max(0.0, partial.cost - partial.lower_bound)
+            else:
+                front = pareto_front(self.found)
+                return ExactOutcome(front, False, None, self.steps, self.nodes)
+        if partial is not None and partial.ties and self._affordable(partial.cost):
+            self._keep(partial, None)
+        front = pareto_front(self.found)
+        larger = max((c.size for c in front), default=0) - least_size
+        bound = Bound(slower, dearer, max(0, larger))
+        return ExactOutcome(front, False, bound, self.steps, self.nodes)
+
+
+@dataclass(frozen=True)
+class Cover:
+    """A cheapest feasible coalition, as far as a bounded search could tell.
+
+    ``members`` are robot indices, None when none was found; ``proven`` says
+    the search finished, so None means no feasible coalition exists and a
+    coalition is a cheapest one.
+    """
+
+    members: IntArray | None
+    proven: bool
+
+
+def cheapest(
+    problem: CoalitionProblem,
+    survivors: IntArray | None = None,
+    deadline: Deadline = NO_DEADLINE,
+    node_limit: int | None = None,
+) -> Cover:
+    """A cheapest feasible coalition, searched within ``deadline`` and ``node_limit`` nodes."""
+    keep = prune(problem) if survivors is None else survivors
+    largest = problem.largest_useful_coalition
+    if keep.size == 0 or largest < 1:
+        return Cover(None, True)
+    solver = CoverSolver(problem, keep, deadline)
+    result = solver.solve(largest, node_limit)
+    proven = result.status != "cut"
+    if not result.ties or not (
+        result.cost <= problem.max_cost + _tolerance(result.cost)
+    ):
+        # A cut search's incumbent may still be dearer than a cheaper cover.
+        return Cover(None, proven)
+    coalitions = [solver.coalition(x) for x in result.ties]
+    best = min((m for m in coalitions if m is not None), key=lambda m: problem.coalition(m).robots)
+    return Cover(best, proven)
 
 
 def cheapest_cover(problem: CoalitionProblem, survivors: IntArray | None = None) -> IntArray | None:
-    """A cheapest feasible coalition (robot indices), or None when none exists.
-
-    The same dynamic program without the front: vectorised over all states,
-    so it stays fast where the exact front would be too much work. The
-    pool stage uses it as a witness that the pool hides no feasible coalition.
-    """
-    if survivors is None:
-        survivors = prune(problem)
-    coverage = _Coverage.of(problem.need)
-    limit = problem.largest_useful_coalition
-    masks = masks_of(problem)
-    cost = np.full((limit + 1, coverage.states), np.inf)
-    cost[0, 0] = 0.0
-    node = np.full((limit + 1, coverage.states), -1, dtype=np.int64)
-    node_robot: list[int] = []
-    node_parent: list[int] = []
-    transitions: dict[int, IntArray] = {}
-    for i in survivors.tolist():
-        mask = int(masks[i])
-        step = transitions.get(mask)
-        if step is None:
-            step = transitions[mask] = coverage.transitions(mask)
-        candidate = cost[:-1] + problem.cost[i]
-        # Scatter to the target states; several sources may share a target,
-        # so take the best source per target first.
-        best = np.full_like(candidate, np.inf)
-        np.minimum.at(best, (slice(None), step), candidate)  # type: ignore[arg-type]
-        improved = best < cost[1:]
-        if not improved.any():
-            continue
-        # The source of each improved target: the one whose candidate equals the best.
-        rows, targets = np.nonzero(improved)
-        before = node.copy()  # sources are read as they were before this robot
-        for n, target in zip(rows.tolist(), targets.tolist(), strict=True):
-            sources = np.flatnonzero((step == target) & (candidate[n] == best[n, target]))
-            node_robot.append(i)
-            node_parent.append(int(before[n, sources[0]]))
-            node[n + 1, target] = len(node_robot) - 1
-        cost[1:] = np.where(improved, best, cost[1:])
-    full = cost[:, coverage.full]
-    n = int(np.argmin(full))
-    if not np.isfinite(full[n]) or full[n] > problem.max_cost + _tolerance(problem.max_cost):
-        return None
-    members, at = [], int(node[n, coverage.full])
-    while at >= 0:
-        members.append(node_robot[at])
-        at = node_parent[at]
-    return np.array(sorted(members), dtype=np.int64)
+    """A cheapest feasible coalition (robot indices), or None when none exists."""
+    return cheapest(problem, survivors).members

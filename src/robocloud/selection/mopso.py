@@ -38,6 +38,7 @@ same seed gives the same coalitions.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal
 
@@ -46,6 +47,7 @@ import numpy.typing as npt
 
 from robocloud.domain import Coalition
 from robocloud.errors import InvalidInput
+from robocloud.selection.budget import NO_DEADLINE, Deadline
 from robocloud.selection.mopso_repository import Repository, dominates_rows
 from robocloud.selection.pareto import pareto_front
 from robocloud.selection.problem import CoalitionProblem
@@ -60,6 +62,9 @@ MAX_VELOCITY = 4.0
 # How much randomness the repair's preference order gets, against a spread
 # of 1 between the best and the worst robot.
 REPAIR_NOISE = 0.15
+# The share of particles that step along the time-cost trade-off after each
+# iteration's repair (``_Swarm._polish``).
+TIGHTEN_SHARE = 0.3
 # Coello's mutation: the share of particles mutated at iteration t is
 # (1 - t / (iterations * mutation_rate)) ** MUTATION_DECAY.
 MUTATION_DECAY = 1.5
@@ -122,6 +127,15 @@ def _between(value: object, low: float, high: float) -> bool:
     )
 
 
+@dataclass(frozen=True)
+class MopsoOutcome:
+    """REP's front; ``complete`` unless the deadline stopped the iterations early."""
+
+    front: list[Coalition]
+    complete: bool
+    iterations: int
+
+
 def mopso(
     problem: CoalitionProblem, pool: IntArray, settings: MopsoSettings = MopsoSettings()
 ) -> list[Coalition]:
@@ -130,6 +144,24 @@ def mopso(
     Returns REP's feasible coalitions, mutually non-dominated and sorted as
     :func:`robocloud.selection.pareto.pareto_front` sorts them; empty when no
     coalition of the pool is feasible.
+    """
+    return mopso_search(problem, pool, settings).front
+
+
+def mopso_search(
+    problem: CoalitionProblem,
+    pool: IntArray,
+    settings: MopsoSettings = MopsoSettings(),
+    *,
+    seeds: Sequence[IntArray] = (),
+    deadline: Deadline = NO_DEADLINE,
+) -> MopsoOutcome:
+    """``mopso`` with seed coalitions and a deadline.
+
+    ``seeds`` are coalitions (indices into ``problem``, within ``pool``) that
+    replace some of the random initial particles (steps 2-3), e.g. the
+    cheap covers of :func:`robocloud.selection.pool.seed_covers`. The
+    deadline is checked between iterations; REP as it stands is the answer.
     """
     pool = _checked_pool(problem, pool)
     # A robot slower or dearer on its own than the thresholds is in no
@@ -145,11 +177,24 @@ def mopso(
     if len(pool) == 0 or (problem.uses[pool].sum(axis=0) < problem.need).any():
         # Only the empty coalition is left, feasible when nothing is required.
         empty = np.zeros((1, problem.size), dtype=bool)
-        return [problem.coalition([])] if problem.feasible(empty)[0] else []
-    swarm = _Swarm(problem.subproblem(pool), settings)
+        front = [problem.coalition([])] if problem.feasible(empty)[0] else []
+        return MopsoOutcome(front, True, 0)
+    position = {int(r): j for j, r in enumerate(pool)}
+    rows = np.zeros((len(seeds), len(pool)), dtype=bool)
+    for row, seed in zip(rows, seeds, strict=True):
+        inside = [position[int(r)] for r in seed if int(r) in position]
+        if len(inside) == len(seed):
+            row[inside] = True
+    rows = rows[rows.any(axis=1)]
+    swarm = _Swarm(problem.subproblem(pool), settings, rows)
+    done = 0
     for iteration in range(settings.iterations):  # step 9
+        if deadline.expired():
+            break
         swarm.next(iteration)
-    return pareto_front(problem.coalition(pool[np.flatnonzero(row)]) for row in swarm.rep.members)
+        done += 1
+    front = pareto_front(problem.coalition(pool[np.flatnonzero(row)]) for row in swarm.rep.members)
+    return MopsoOutcome(front, done == settings.iterations, done)
 
 
 def _checked_pool(problem: CoalitionProblem, pool: IntArray) -> IntArray:
@@ -169,7 +214,9 @@ class _Swarm:
     """One run of Algorithm 4 on the pool's subproblem: set up (steps 2-8),
     then ``next`` once per iteration (steps 10-18)."""
 
-    def __init__(self, problem: CoalitionProblem, settings: MopsoSettings) -> None:
+    def __init__(
+        self, problem: CoalitionProblem, settings: MopsoSettings, seeds: BoolArray | None = None
+    ) -> None:
         self.problem = problem
         self.settings = settings
         self.rng = np.random.default_rng(settings.seed)
@@ -179,9 +226,22 @@ class _Swarm:
         self.uses_float = problem.uses.astype(np.float64)
         self.brings_float = np.ascontiguousarray(self.uses_float.T)
         self.features = self._features()
+        # The pool's robots by class (the set of required capabilities they
+        # bring), each class cheapest first: what ``_polish`` picks from.
+        _, member = np.unique(problem.uses, axis=0, return_inverse=True)
+        member = member.reshape(-1)
+        self.class_order = np.lexsort((problem.cost, member))
+        self.class_of = member[self.class_order]
+        self.class_starts = np.flatnonzero(np.r_[True, self.class_of[1:] != self.class_of[:-1]])
+        self.class_of = np.cumsum(np.r_[False, self.class_of[1:] != self.class_of[:-1]])
+        self.ordered_time = problem.time[self.class_order]
         self.rep = Repository(problem.size, settings.repository_size, settings.grid_divisions)
         # Steps 2-4: positions, each particle's preference, velocities.
         self.position, self.preference = self._initial_swarm()
+        if seeds is not None and len(seeds):
+            # Seed coalitions take the places of the last random particles.
+            take = min(len(seeds), max(self.settings.swarm_size // 2, 1))
+            self.position[-take:] = seeds[:take]
         self.velocity = self.rng.uniform(-1.0, 1.0, size=self.position.shape)
         # Step 5 (Algorithm 5) and step 6: the feasible non-dominated go to REP.
         objectives, violation = self._evaluate(self.position)
@@ -220,7 +280,8 @@ class _Swarm:
         penalty[:g] = seed_penalty
         noise = np.zeros(size)
         noise[g:] = REPAIR_NOISE
-        return self._repair(start, preference, penalty, noise), preference
+        repaired = self._repair(start, preference, penalty, noise)
+        return self._polish(repaired, np.zeros(size, dtype=bool)), preference
 
     def _greedy_preferences(self) -> tuple[FloatArray, FloatArray]:
         """Preferences (and penalties on robots past a cap) of the greedy seeds.
@@ -265,9 +326,11 @@ class _Swarm:
         )
         position = rng.random((size, m)) < 1.0 / (1.0 + np.exp(-self.velocity))
         position = self._mutate(position, iteration)
-        self.position = self._repair(
+        position = self._repair(
             position, self.preference, np.zeros((size, m)), np.full(size, REPAIR_NOISE)
         )
+        tighten = np.asarray(rng.random(size) < TIGHTEN_SHARE)
+        self.position = self._polish(position, tighten)
         # Algorithm 5 and step 18.
         objectives, violation = self._evaluate(self.position)
         feasible = violation == 0
@@ -288,6 +351,42 @@ class _Swarm:
         # Drawn with replacement: a bit drawn twice flips once.
         flip[np.arange(size)[:, None], self.rng.integers(0, m, size=(size, flips))] = True
         return np.asarray(position ^ (mutated[:, None] & flip))
+
+    def _polish(self, position: BoolArray, tighten: BoolArray) -> BoolArray:
+        """Each particle keeps how many robots it has of each class, but takes the
+        cheapest robots of that class no slower than its T; those in ``tighten``
+        take them strictly faster than their T, when enough are.
+
+        A class is a set of required capabilities; robots of one class are
+        interchangeable for coverage, so coverage and N stay, and T and C get
+        no worse: a polished particle weakly dominates the one it was. A
+        tightened particle steps along the time-cost trade-off instead (T
+        down, C up), as the exact optimizer's sweep does.
+        """
+        time, _, _ = self.problem.evaluate(position)
+        margin = np.maximum(1e-6, 1e-9 * np.abs(time))
+        loose = time + margin
+        order, starts, of = self.class_order, self.class_starts, self.class_of
+        held = np.add.reduceat(position[:, order].astype(np.int64), starts, axis=1)
+        wanted = held[:, of]
+
+        def pick(limit: FloatArray) -> tuple[BoolArray, BoolArray]:
+            # All classes at once: a running count restarted at each class's start.
+            eligible = self.ordered_time[None, :] <= limit[:, None]
+            running = np.cumsum(eligible, axis=1)
+            before = np.concatenate((np.zeros((len(limit), 1), dtype=np.int64), running), axis=1)
+            rank = running - before[:, starts][:, of]
+            enough = (np.add.reduceat(eligible, starts, axis=1) >= held).all(axis=1)
+            return eligible & (rank <= wanted), np.asarray(enough)
+
+        chosen, enough = pick(np.where(tighten, time - margin, loose))
+        short = ~enough
+        if short.any():
+            # Too few faster robots: those particles are polished without tightening.
+            chosen[short] = pick(loose)[0][short]
+        polished = np.zeros_like(position)
+        polished[:, order] = chosen
+        return polished
 
     def _repair(
         self,

@@ -1,8 +1,12 @@
 """Why no coalition is feasible: the requirement or threshold that could not be met.
 
-Each check relaxes the thresholds that come after it, so the first one that
-fails names the real obstacle: the capabilities the candidates bring at all,
-then max_time, then max_robots, then max_cost.
+First the cheap, sound tests of :mod:`robocloud.selection.feasibility`
+(capabilities, the largest count against max_robots, max_time, a covering
+bound on the size, a lower bound on the cost). When none fires but the
+search found nothing, a cheapest cover decides between max_robots and
+max_cost: each check relaxes the thresholds after it, so the first that
+fails names the real obstacle. That search is bounded by the selection's
+deadline; when the deadline ends it first, the reason says so.
 """
 
 from __future__ import annotations
@@ -11,47 +15,35 @@ import dataclasses
 import math
 
 from robocloud.domain import Task
-from robocloud.selection.exact import cheapest_cover, within_thresholds
+from robocloud.selection.budget import NO_DEADLINE, Deadline
+from robocloud.selection.exact import cheapest
+from robocloud.selection.feasibility import quick_infeasibility, task_kind
 from robocloud.selection.problem import CoalitionProblem
 
-
-def _robots(count: int) -> str:
-    return f"{count} robot{'s' if count != 1 else ''}"
+__all__ = ["infeasibility_reason", "out_of_time", "task_kind"]
 
 
-def infeasibility_reason(problem: CoalitionProblem, task: Task) -> str:
-    filter_text = f"idle with battery at or above {task.min_battery:g}%"
-    if problem.size == 0:
-        return f"no robot that is {filter_text} brings any required capability."
-    carriers = problem.uses.sum(axis=0)
-    for name, need, have in zip(problem.capabilities, problem.need, carriers, strict=True):
-        if have < need:
-            return (
-                f"{task_kind(task, name)} capability {name!r} needs {_robots(int(need))}, "
-                f"but only {_robots(int(have))} {filter_text} bring it."
-            )
-    in_time = dataclasses.replace(problem, max_cost=math.inf, max_robots=int(problem.need.sum()))
-    fast = in_time.subproblem(within_thresholds(in_time))
-    reachable = fast.uses.sum(axis=0)
-    for name, need, have in zip(problem.capabilities, problem.need, reachable, strict=True):
-        if have < need:
-            return (
-                f"max_time {task.max_time:g} s cannot be met: {task_kind(task, name)} capability "
-                f"{name!r} needs {_robots(int(need))}, and only {_robots(int(have))} can reach "
-                f"the location and do the work in time."
-            )
-    cheapest = cheapest_cover(dataclasses.replace(problem, max_cost=math.inf))
-    if cheapest is None:
+def out_of_time(deadline: Deadline) -> str:
+    budget = f"of {deadline.budget_s:g} s " if deadline.budget_s is not None else ""
+    return f"the time budget {budget}ran out before a feasible coalition was found."
+
+
+def infeasibility_reason(
+    problem: CoalitionProblem, task: Task, deadline: Deadline = NO_DEADLINE
+) -> str:
+    quick = quick_infeasibility(problem, task)
+    if quick is not None:
+        return quick
+    cover = cheapest(dataclasses.replace(problem, max_cost=math.inf), deadline=deadline)
+    if not cover.proven:
+        return out_of_time(deadline)
+    if cover.members is None:
         return (
-            f"max_robots {task.max_robots} cannot be met: every coalition that brings the "
+            f"max_robots {task.max_robots:,} cannot be met: every coalition that brings the "
             f"required capabilities in time needs more robots."
         )
-    cost = float(problem.cost[cheapest].sum())
+    cost = float(problem.cost[cover.members].sum())
     return (
         f"max_cost {task.max_cost:g} cannot be met: the cheapest coalition that brings the "
         f"required capabilities in time costs {cost:.2f}."
     )
-
-
-def task_kind(task: Task, name: str) -> str:
-    return "sensing" if name in task.sensing else "actuating"

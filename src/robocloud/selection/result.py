@@ -1,4 +1,4 @@
-"""What ``select`` returns, in MODEL.md's output shape."""
+"""What ``select`` returns, in MODEL.md's output shape plus how complete it is."""
 
 from __future__ import annotations
 
@@ -6,12 +6,24 @@ from dataclasses import dataclass
 from typing import Any, Literal
 
 from robocloud.domain import Coalition
+from robocloud.selection.exact import Bound
 
 OptimizerName = Literal["exact", "mopso"]
 
 
 @dataclass(frozen=True)
 class SelectionResult:
+    """MODEL.md's fields, then:
+
+    - ``complete``: False when the time budget cut the search (or, with no
+      coalition, when it ran out before the task was proven infeasible).
+    - ``bound``: for the exact optimizer, how far ``pareto`` can be from the
+      true front (all zero when complete); None for MOPSO (a heuristic, no
+      certificate) and when nothing was found.
+    - ``note``: a sentence saying what the budget cut and what the bound means.
+    - ``searched``: False when a cheap test answered before any optimizer ran.
+    """
+
     candidates: int
     ranking: tuple[str, ...]
     pareto: tuple[Coalition, ...]
@@ -20,9 +32,14 @@ class SelectionResult:
     optimizer: OptimizerName
     elapsed_ms: float
     pool: tuple[str, ...] = ()
+    complete: bool = True
+    bound: Bound | None = None
+    note: str | None = None
+    searched: bool = True
 
     def to_json(self) -> dict[str, Any]:
-        """MODEL.md's ``select`` output."""
+        """MODEL.md's ``select`` output, and ``complete``, ``bound`` and ``note``."""
+        bound = self.bound
         return {
             "candidates": self.candidates,
             "ranking": list(self.ranking),
@@ -31,4 +48,11 @@ class SelectionResult:
             "reason": self.reason,
             "optimizer": self.optimizer,
             "elapsed_ms": round(self.elapsed_ms, 3),
+            "complete": self.complete,
+            "bound": (
+                {"time": bound.time, "cost": bound.cost, "size": bound.size}
+                if bound is not None
+                else None
+            ),
+            "note": self.note,
         }

@@ -8,6 +8,7 @@
     open_store(url)         memory://, sqlite:///FILE, postgresql+psycopg://...
 
     RequestRecord, StateChange   what the store gives back (frozen dataclasses)
+    Loan                         a robot lent to another cloud's request (robocloud.iaas.home)
     StoreUnavailable             the database cannot be reached (a RoboCloudError)
 
 Layer 3: imports ``robocloud.domain`` and ``robocloud.errors`` only.
@@ -15,12 +16,13 @@ Layer 3: imports ``robocloud.domain`` and ``robocloud.errors`` only.
 
 from robocloud.storage.memory import MemoryRequestStore
 from robocloud.storage.opening import MEMORY_URL, open_store
-from robocloud.storage.records import RequestRecord, StateChange
+from robocloud.storage.records import Loan, RequestRecord, StateChange
 from robocloud.storage.sql import SqlRequestStore
 from robocloud.storage.store import RequestStore, StoreUnavailable
 
 __all__ = [
     "MEMORY_URL",
+    "Loan",
     "MemoryRequestStore",
     "RequestRecord",
     "RequestStore",

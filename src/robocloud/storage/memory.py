@@ -15,13 +15,22 @@ from typing import Any
 
 from robocloud.domain import ACTIVE_STATES, FINAL_STATES
 from robocloud.storage import rules
-from robocloud.storage.records import RequestRecord, StateChange, new_request_id
+from robocloud.storage.records import Loan, RequestRecord, StateChange, new_loan_id, new_request_id
 
 
 @dataclass(frozen=True)
 class _Hold:
-    request_id: str
+    """A robot's one holder: a request of this cloud, or a loan (``loan_id``)."""
+
+    request_id: str | None
     expires_at: datetime | None
+    loan_id: str | None = None
+
+    @property
+    def holder(self) -> str:
+        holder = self.request_id or self.loan_id
+        assert holder is not None
+        return holder
 
 
 class MemoryRequestStore:
@@ -36,6 +45,11 @@ class MemoryRequestStore:
         self._requests: dict[str, tuple[RequestRecord, str, str | None]] = {}
         self._keys: dict[tuple[str, str], str] = {}
         self._holds: dict[str, _Hold] = {}
+        self._loans: dict[str, Loan] = {}
+        # Indexes, as the SQL store's: the live loans of an origin request, by
+        # robot; the ended loans an origin is still to be told about.
+        self._lent: dict[tuple[str, str], dict[str, str]] = {}
+        self._untold: dict[str, set[str]] = {}
 
     # requests
 
@@ -225,11 +239,166 @@ class MemoryRequestStore:
         with self._lock:
             now = self._clock()
             return {
-                robot: held.request_id
+                robot: held.holder
                 for robot, held in sorted(self._holds.items())
                 if not rules.is_expired(held.expires_at, now)
                 and (request_id is None or held.request_id == request_id)
             }
+
+    # loans
+
+    def lend(
+        self,
+        origin: str,
+        request_id: str,
+        robot_ids: Sequence[str],
+        lease_seconds: float,
+    ) -> builtins.list[str]:
+        rules.check_name(origin, "origin", "origin")
+        rules.check_name(request_id, "request_id", "request_id")
+        robots = rules.check_robots(robot_ids)
+        with self._lock:
+            now = self._clock()
+            expires_at = rules.check_lease(lease_seconds, now)
+            self._drop_expired(robots, now)
+            mine = self._lent.get((origin, request_id), {})
+            taken = [
+                robot
+                for robot in robots
+                if robot in self._holds
+                and (
+                    self._holds[robot].loan_id is None
+                    or self._holds[robot].loan_id != mine.get(robot)
+                )
+            ]
+            if taken:
+                return taken
+            for robot in sorted(robots):
+                loan_id = mine.get(robot)
+                if loan_id is None:
+                    loan_id = new_loan_id()
+                    self._loans[loan_id] = Loan(
+                        id=loan_id,
+                        robot=robot,
+                        origin=origin,
+                        request_id=request_id,
+                        state="leased",
+                        expires_at=expires_at,
+                        created_at=now,
+                        updated_at=now,
+                        reason=None,
+                        tell_origin=False,
+                        history=(StateChange("leased", now, f"lent to {origin}"),),
+                    )
+                    self._holds[robot] = _Hold(None, expires_at, loan_id)
+                    self._lent.setdefault((origin, request_id), {})[robot] = loan_id
+                    continue
+                loan = self._loans[loan_id]
+                if loan.expires_at is not None and loan.expires_at < expires_at:
+                    self._loans[loan_id] = replace(loan, expires_at=expires_at, updated_at=now)
+                    self._holds[robot] = _Hold(None, expires_at, loan_id)
+            return []
+
+    def confirm_loans(
+        self, origin: str, request_id: str, robot_ids: Sequence[str]
+    ) -> builtins.list[str]:
+        robots = rules.check_robots(robot_ids)
+        with self._lock:
+            now = self._clock()
+            self._drop_expired(robots, now)
+            mine = self._lent.get((origin, request_id), {})
+            lost = [robot for robot in robots if robot not in mine]
+            if lost:
+                return lost
+            for robot in robots:
+                loan = self._loans[mine[robot]]
+                if loan.state == "leased":
+                    self._change(loan, now, state="firm", expires_at=None, detail="confirmed")
+                    self._holds[robot] = _Hold(None, None, loan.id)
+            return []
+
+    def end_loans(
+        self,
+        origin: str,
+        request_id: str,
+        robot_ids: Sequence[str] | None,
+        why: str,
+        *,
+        tell_origin: bool = False,
+    ) -> builtins.list[Loan]:
+        robots = None if robot_ids is None else rules.check_robots(robot_ids)
+        rules.check_why(why)
+        with self._lock:
+            now = self._clock()
+            mine = self._lent.get((origin, request_id), {})
+            chosen = list(mine) if robots is None else [r for r in robots if r in mine]
+            return [self._end(self._loans[mine[r]], now, why, tell_origin) for r in chosen]
+
+    def lapse_loans(self) -> builtins.list[Loan]:
+        with self._lock:
+            now = self._clock()
+            lapsed = [
+                robot
+                for robot, held in self._holds.items()
+                if held.loan_id is not None and rules.is_expired(held.expires_at, now)
+            ]
+            return self._drop_expired(lapsed, now)
+
+    def loan_of(self, robot_id: str) -> Loan | None:
+        with self._lock:
+            held = self._holds.get(robot_id)
+            if held is None or held.loan_id is None:
+                return None
+            if rules.is_expired(held.expires_at, self._clock()):
+                return None
+            return self._loans[held.loan_id]
+
+    def loans(
+        self, origin: str | None = None, request_id: str | None = None
+    ) -> builtins.list[Loan]:
+        with self._lock:
+            now = self._clock()
+            if origin is not None and request_id is not None:
+                ids = list(self._lent.get((origin, request_id), {}).values())
+            else:
+                ids = [
+                    loan_id
+                    for (o, _), robots in self._lent.items()
+                    if origin is None or o == origin
+                    for loan_id in robots.values()
+                ]
+            found = [self._loans[i] for i in ids]
+            found = [
+                replace(loan, history=())
+                for loan in found
+                if loan.live(now) and (request_id is None or loan.request_id == request_id)
+            ]
+        found.sort(key=lambda loan: (loan.created_at, loan.robot, loan.id))
+        return found
+
+    def untold_loans(self, origin: str) -> builtins.list[Loan]:
+        with self._lock:
+            found = [self._loans[i] for i in self._untold.get(origin, ())]
+        found.sort(key=lambda loan: (loan.updated_at, loan.id))
+        return found
+
+    def told(self, origin: str, loan_ids: Sequence[str]) -> builtins.list[Loan]:
+        ids = rules.check_names(loan_ids, "a loan id", "loan_ids")
+        with self._lock:
+            now = self._clock()
+            untold = self._untold.get(origin, set())
+            marked = []
+            for loan_id in ids:
+                if loan_id in untold:
+                    untold.discard(loan_id)
+                    loan = self._change(
+                        self._loans[loan_id],
+                        now,
+                        tell_origin=False,
+                        detail=f"{origin} was told that the loan ended",
+                    )
+                    marked.append(loan)
+            return marked
 
     def close(self) -> None:
         pass
@@ -250,11 +419,50 @@ class MemoryRequestStore:
             selection=None if selection_text is None else rules.load_json(selection_text),
         )
 
-    def _drop_expired(self, robots: builtins.list[str], now: datetime) -> None:
+    def _drop_expired(self, robots: builtins.list[str], now: datetime) -> builtins.list[Loan]:
+        """Free the robots whose lease lapsed; a lapsed loan ends. Returns those loans."""
+        ended = []
         for robot in robots:
             held = self._holds.get(robot)
             if held is not None and rules.is_expired(held.expires_at, now):
                 del self._holds[robot]
+                if held.loan_id is not None:
+                    ended.append(self._end(self._loans[held.loan_id], now, "the lease lapsed"))
+        return ended
+
+    def _change(self, loan: Loan, now: datetime, detail: str, **values: Any) -> Loan:
+        state = values.get("state", loan.state)
+        loan = replace(
+            loan,
+            **values,
+            updated_at=now,
+            history=(
+                *loan.history,
+                StateChange(state, now, detail, "state" if state != loan.state else "event"),
+            ),
+        )
+        self._loans[loan.id] = loan
+        return loan
+
+    def _end(self, loan: Loan, now: datetime, why: str, tell_origin: bool = False) -> Loan:
+        held = self._holds.get(loan.robot)
+        if held is not None and held.loan_id == loan.id:
+            del self._holds[loan.robot]
+        robots = self._lent.get((loan.origin, loan.request_id), {})
+        robots.pop(loan.robot, None)
+        if not robots:
+            self._lent.pop((loan.origin, loan.request_id), None)
+        if tell_origin:
+            self._untold.setdefault(loan.origin, set()).add(loan.id)
+        return self._change(
+            loan,
+            now,
+            state="released",
+            expires_at=None,
+            reason=why,
+            tell_origin=tell_origin,
+            detail=why,
+        )
 
     def _release(self, request_id: str, robots: builtins.list[str] | None) -> None:
         for robot in list(self._holds) if robots is None else robots:

@@ -56,3 +56,45 @@ class RequestRecord:
 def new_request_id() -> str:
     """``req-`` and 12 lower-case base32 characters (60 random bits): short, URL-safe."""
     return "req-" + base64.b32encode(secrets.token_bytes(8)).decode("ascii")[:12].lower()
+
+
+LoanState = Literal["leased", "firm", "released"]
+LOAN_STATES: tuple[str, ...] = ("leased", "firm", "released")
+
+
+@dataclass(frozen=True)
+class Loan:
+    """One robot of this cloud lent to a request of another cloud (the origin).
+
+    ``leased`` until the origin confirms it (``expires_at`` says when the lease
+    lapses; None once the home forwarded the robot's dispatch, after which it
+    no longer lapses), then ``firm``, then ``released`` (``reason`` says why).
+    ``request_id`` is the origin's id of its request, not a request of this
+    store. ``tell_origin``: the home ended the loan on its own (the origin was
+    away) and the origin has not been told yet. ``history`` is oldest first.
+    """
+
+    id: str
+    robot: str
+    origin: str
+    request_id: str
+    state: str
+    expires_at: datetime | None
+    created_at: datetime
+    updated_at: datetime
+    reason: str | None
+    tell_origin: bool
+    history: tuple[StateChange, ...] = ()
+
+    @property
+    def active(self) -> bool:
+        return self.state != "released"
+
+    def live(self, now: datetime) -> bool:
+        """Whether the loan holds its robot at ``now`` (not released, lease not lapsed)."""
+        return self.active and (self.expires_at is None or self.expires_at >= now)
+
+
+def new_loan_id() -> str:
+    """``loan-`` and 12 lower-case base32 characters, like request ids."""
+    return "loan-" + base64.b32encode(secrets.token_bytes(8)).decode("ascii")[:12].lower()

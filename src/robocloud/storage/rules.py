@@ -117,11 +117,16 @@ def check_limit(limit: int) -> int:
 
 def check_robots(robot_ids: Sequence[str]) -> list[str]:
     """The robot ids, each once, in the order given."""
-    if isinstance(robot_ids, str):
-        raise InvalidInput("robot_ids must be a list of robot ids, not one text.", "robot_ids")
+    return check_names(robot_ids, "a robot id", "robot_ids")
+
+
+def check_names(values: Sequence[str], what: str, field: str) -> list[str]:
+    """Names (robot ids, loan ids), each once, in the order given."""
+    if isinstance(values, str):
+        raise InvalidInput(f"{field} must be a list of ids, not one text.", field)
     seen: dict[str, None] = {}
-    for robot in robot_ids:
-        seen[check_name(robot, "a robot id", "robot_ids")] = None
+    for value in values:
+        seen[check_name(value, what, field)] = None
     return list(seen)
 
 
@@ -165,3 +170,18 @@ def check_move(request_id: str, current: str, new: str) -> None:
 def check_can_hold_robots(request_id: str, state: str) -> None:
     if state in FINAL_STATES:
         raise Conflict(f"Request {request_id} is {state}; it cannot reserve robots.")
+
+
+def check_lease(lease_seconds: float, now: datetime) -> datetime:
+    """When a loan's lease taken ``now`` expires: a loan always starts as a lease."""
+    if lease_seconds is None:
+        raise InvalidInput("a loan needs lease_seconds: it starts as a lease.", "lease_seconds")
+    end = lease_end(now, lease_seconds)
+    assert end is not None
+    return end
+
+
+def check_why(why: str) -> str:
+    if not isinstance(why, str) or not why.strip():
+        raise InvalidInput("why must be a sentence saying why the loans end.", "why")
+    return why

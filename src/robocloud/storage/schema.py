@@ -6,12 +6,19 @@
                      selection (JSON text), idempotency_key, created_at, updated_at
                      UNIQUE (application, idempotency_key)
     request_history  (request_id -> requests.id, seq) PK, kind, state, detail, at
-    reservations     robot_id PK, request_id -> requests.id, expires_at, created_at
+    reservations     robot_id PK, request_id -> requests.id | loan_id -> loans.id,
+                     expires_at, created_at
+    loans            id PK, robot_id, origin, request_id (the origin's), state,
+                     expires_at, reason, tell_origin, created_at, updated_at
+    loan_history     id PK (a counter), loan_id -> loans.id, state, detail, at
 
 JSON is TEXT (``json.dumps``) so both databases store and compare it alike.
 Times are UTC: ``timestamptz`` on PostgreSQL, UTC text on SQLite. The primary
 key on ``reservations.robot_id`` is what keeps a robot out of two coalitions,
-whichever processes share the database.
+whichever processes share the database: a reservation row is held either by a
+request of this cloud or by a loan to another cloud's request (exactly one of
+``request_id`` and ``loan_id``), so local requests and loans share the one
+guarantee. ``loans`` keeps every loan, ended ones too, as their history.
 """
 
 from __future__ import annotations
@@ -19,6 +26,8 @@ from __future__ import annotations
 from datetime import UTC, datetime
 
 from sqlalchemy import (
+    Boolean,
+    CheckConstraint,
     Column,
     DateTime,
     Dialect,
@@ -95,17 +104,47 @@ request_history = Table(
     PrimaryKeyConstraint("request_id", "seq", name="pk_request_history"),
 )
 
+loans = Table(
+    "loans",
+    metadata,
+    Column("id", String(32), primary_key=True),
+    Column("robot_id", String(NAME), nullable=False),
+    Column("origin", String(NAME), nullable=False),
+    Column("request_id", String(NAME), nullable=False),
+    Column("state", String(16), nullable=False),
+    Column("expires_at", UTCDateTime),
+    Column("reason", Text),
+    Column("tell_origin", Boolean, nullable=False, default=False),
+    Column("created_at", UTCDateTime, nullable=False),
+    Column("updated_at", UTCDateTime, nullable=False),
+    Index("ix_loans_origin_request", "origin", "request_id"),
+    Index("ix_loans_robot", "robot_id"),
+    Index("ix_loans_origin_tell", "origin", "tell_origin"),
+    # The live loans among all the ended ones the table keeps.
+    Index("ix_loans_state", "state"),
+)
+
+loan_history = Table(
+    "loan_history",
+    metadata,
+    # A counter, not (loan, seq): a line is added without reading the last one.
+    Column("id", Integer, primary_key=True, autoincrement=True),
+    Column("loan_id", String(32), ForeignKey("loans.id", ondelete="CASCADE"), nullable=False),
+    Column("state", String(16), nullable=False),
+    Column("detail", Text),
+    Column("at", UTCDateTime, nullable=False),
+    Index("ix_loan_history_loan", "loan_id", "id"),
+)
+
 reservations = Table(
     "reservations",
     metadata,
     Column("robot_id", String(NAME), primary_key=True),
-    Column(
-        "request_id",
-        String(32),
-        ForeignKey("requests.id", ondelete="CASCADE"),
-        nullable=False,
-    ),
+    Column("request_id", String(32), ForeignKey("requests.id", ondelete="CASCADE")),
+    Column("loan_id", String(32), ForeignKey("loans.id", ondelete="CASCADE")),
     Column("expires_at", UTCDateTime),
     Column("created_at", UTCDateTime, nullable=False),
+    CheckConstraint("(request_id IS NULL) <> (loan_id IS NULL)", name="ck_reservations_one_holder"),
     Index("ix_reservations_request", "request_id"),
+    Index("ix_reservations_loan", "loan_id"),
 )

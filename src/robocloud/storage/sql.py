@@ -9,18 +9,21 @@ request and its history come from one snapshot.
 
 No robot is ever reserved twice because ``reservations.robot_id`` is the
 primary key; when two PostgreSQL transactions race for a robot the loser gets a
-unique violation, and ``reserve`` runs again and reports the robot as taken.
+unique violation, and ``reserve`` (or ``lend``) runs again and reports the
+robot as taken. Loans hold their robots in the same table, so a robot lent to
+another cloud is never reserved by a request of this one, nor the reverse.
 """
 
 from __future__ import annotations
 
 import builtins
+import logging
 import random
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import AbstractContextManager, contextmanager, nullcontext
-from datetime import datetime
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -35,6 +38,7 @@ from sqlalchemy import (
     event,
     func,
     insert,
+    inspect,
     or_,
     select,
     text,
@@ -52,11 +56,26 @@ from sqlalchemy.exc import (
 from robocloud.domain import ACTIVE_STATES, FINAL_STATES
 from robocloud.errors import InvalidInput
 from robocloud.storage import rules
-from robocloud.storage.records import RequestRecord, StateChange, new_request_id
-from robocloud.storage.schema import metadata, request_history, requests, reservations
+from robocloud.storage.records import (
+    Loan,
+    RequestRecord,
+    StateChange,
+    new_loan_id,
+    new_request_id,
+)
+from robocloud.storage.schema import (
+    loan_history,
+    loans,
+    metadata,
+    request_history,
+    requests,
+    reservations,
+)
 from robocloud.storage.store import StoreUnavailable
 
 T = TypeVar("T")
+_ACTIVE_LOANS = ("leased", "firm")  # as a list, not != released: the state index serves it
+log = logging.getLogger(__name__)
 
 URL_HINT = "use sqlite:///FILE or postgresql+psycopg://USER@HOST:PORT/DATABASE"
 BUSY_TIMEOUT_S = 15.0  # how long a SQLite writer waits for another process's write
@@ -347,15 +366,234 @@ class SqlRequestStore:
         def work(conn: Connection) -> dict[str, str]:
             now = self._clock()
             query = (
-                select(reservations.c.robot_id, reservations.c.request_id)
-                .where(or_(reservations.c.expires_at.is_(None), reservations.c.expires_at >= now))
+                select(reservations.c.robot_id, reservations.c.request_id, reservations.c.loan_id)
+                .where(_unexpired(reservations.c.expires_at, now))
                 .order_by(reservations.c.robot_id)
             )
             if request_id is not None:
                 query = query.where(reservations.c.request_id == request_id)
-            return {row.robot_id: row.request_id for row in conn.execute(query)}
+            return {row.robot_id: row.request_id or row.loan_id for row in conn.execute(query)}
 
         return self._run(work, write=False)
+
+    # loans
+
+    def lend(
+        self,
+        origin: str,
+        request_id: str,
+        robot_ids: Sequence[str],
+        lease_seconds: float,
+    ) -> builtins.list[str]:
+        rules.check_name(origin, "origin", "origin")
+        rules.check_name(request_id, "request_id", "request_id")
+        robots = rules.check_robots(robot_ids)
+        rules.check_lease(lease_seconds, self._clock())  # check it before any work
+
+        def work(conn: Connection) -> builtins.list[str]:
+            now = self._clock()
+            expires_at = rules.check_lease(lease_seconds, now)
+            held = {row.robot_id: row for row in self._live_holds(conn, robots, now)}
+            mine: dict[str, Any] = {}
+            if any(row.loan_id is not None for row in held.values()):
+                mine = self._lent(conn, origin, request_id, robots, now)
+            taken = [
+                r for r in robots if r in held and (r not in mine or held[r].loan_id != mine[r].id)
+            ]
+            if taken:
+                return taken
+            new = sorted(r for r in robots if r not in held)  # one order: no deadlocks
+            if new:
+                ids = {r: new_loan_id() for r in new}
+                # Plain parameters (one statement, compiled once and cached), not
+                # a multi-row VALUES: loan ids are new, so no race is lost here.
+                conn.execute(
+                    insert(loans),
+                    [
+                        {
+                            "id": ids[r],
+                            "robot_id": r,
+                            "origin": origin,
+                            "request_id": request_id,
+                            "state": "leased",
+                            "expires_at": expires_at,
+                            "tell_origin": False,
+                            "created_at": now,
+                            "updated_at": now,
+                        }
+                        for r in new
+                    ],
+                )
+                self._loan_history(
+                    conn, [(ids[r], "leased", f"lent to {origin}") for r in new], now
+                )
+                holds = [
+                    {"robot_id": r, "loan_id": ids[r], "expires_at": expires_at, "created_at": now}
+                    for r in new
+                ]
+                # The robots' race is decided here (the primary key): one multi-row
+                # INSERT for several, as _hold does; one robot needs no more.
+                conn.execute(
+                    insert(reservations).values(holds) if len(holds) > 1 else insert(reservations),
+                    holds[0] if len(holds) == 1 else None,
+                )
+            longer = [
+                mine[r].id
+                for r in robots
+                if r in mine and mine[r].expires_at is not None and mine[r].expires_at < expires_at
+            ]
+            if longer:
+                conn.execute(
+                    update(loans)
+                    .where(loans.c.id.in_(longer))
+                    .values(expires_at=expires_at, updated_at=now)
+                )
+                conn.execute(
+                    update(reservations)
+                    .where(reservations.c.loan_id.in_(longer))
+                    .values(expires_at=expires_at)
+                )
+            return []
+
+        return self._run(work, write=True, retry_integrity=True)
+
+    def confirm_loans(
+        self, origin: str, request_id: str, robot_ids: Sequence[str]
+    ) -> builtins.list[str]:
+        robots = rules.check_robots(robot_ids)
+
+        def work(conn: Connection) -> builtins.list[str]:
+            now = self._clock()
+            mine = self._lent(conn, origin, request_id, robots, now)
+            lost = [r for r in robots if r not in mine]
+            if lost:
+                return lost
+            self._make_firm(conn, [row for row in mine.values()], now, "confirmed")
+            return []
+
+        return self._run(work, write=True)
+
+    def end_loans(
+        self,
+        origin: str,
+        request_id: str,
+        robot_ids: Sequence[str] | None,
+        why: str,
+        *,
+        tell_origin: bool = False,
+    ) -> builtins.list[Loan]:
+        robots = None if robot_ids is None else rules.check_robots(robot_ids)
+        rules.check_why(why)
+
+        def work(conn: Connection) -> builtins.list[Loan]:
+            now = self._clock()
+            query = (
+                select(loans.c.id)
+                .where(
+                    loans.c.origin == origin,
+                    loans.c.request_id == request_id,
+                    loans.c.state.in_(_ACTIVE_LOANS),
+                )
+                .order_by(loans.c.id)
+                .with_for_update()
+            )
+            if robots is not None:
+                query = query.where(loans.c.robot_id.in_(robots))
+            ids = [row.id for row in conn.execute(query)]
+            self._end_loans(conn, ids, now, why, tell_origin)
+            return self._loans_by_id(conn, ids, history=False)
+
+        return self._run(work, write=True)
+
+    def lapse_loans(self) -> builtins.list[Loan]:
+        def work(conn: Connection) -> builtins.list[Loan]:
+            now = self._clock()
+            lapsed = conn.execute(
+                select(reservations.c.robot_id, reservations.c.loan_id).where(
+                    reservations.c.loan_id.is_not(None), reservations.c.expires_at < now
+                )
+            ).all()
+            ids = self._drop(conn, lapsed, now)
+            return self._loans_by_id(conn, ids, history=False)
+
+        return self._run(work, write=True)
+
+    def loan_of(self, robot_id: str) -> Loan | None:
+        def work(conn: Connection) -> Loan | None:
+            loan_id = conn.execute(
+                select(reservations.c.loan_id).where(
+                    reservations.c.robot_id == robot_id,
+                    reservations.c.loan_id.is_not(None),
+                    _unexpired(reservations.c.expires_at, self._clock()),
+                )
+            ).scalar_one_or_none()
+            if loan_id is None:
+                return None
+            return self._loans_by_id(conn, [loan_id], history=True)[0]
+
+        return self._run(work, write=False)
+
+    def loans(
+        self, origin: str | None = None, request_id: str | None = None
+    ) -> builtins.list[Loan]:
+        def work(conn: Connection) -> builtins.list[Loan]:
+            query = select(loans).where(
+                loans.c.state.in_(_ACTIVE_LOANS), _unexpired(loans.c.expires_at, self._clock())
+            )
+            if origin is not None:
+                query = query.where(loans.c.origin == origin)
+            if request_id is not None:
+                query = query.where(loans.c.request_id == request_id)
+            rows = conn.execute(
+                query.order_by(loans.c.created_at, loans.c.robot_id, loans.c.id)
+            ).all()
+            return [_loan(row) for row in rows]
+
+        return self._run(work, write=False)
+
+    def untold_loans(self, origin: str) -> builtins.list[Loan]:
+        def work(conn: Connection) -> builtins.list[Loan]:
+            rows = conn.execute(
+                select(loans)
+                .where(loans.c.origin == origin, loans.c.tell_origin.is_(True))
+                .order_by(loans.c.updated_at, loans.c.id)
+            ).all()
+            return [_loan(row) for row in rows]
+
+        return self._run(work, write=False)
+
+    def told(self, origin: str, loan_ids: Sequence[str]) -> builtins.list[Loan]:
+        ids = rules.check_names(loan_ids, "a loan id", "loan_ids")
+
+        def work(conn: Connection) -> builtins.list[Loan]:
+            now = self._clock()
+            marked = [
+                row.id
+                for row in conn.execute(
+                    select(loans.c.id)
+                    .where(
+                        loans.c.origin == origin,
+                        loans.c.id.in_(ids),
+                        loans.c.tell_origin.is_(True),
+                    )
+                    .order_by(loans.c.id)
+                    .with_for_update()
+                )
+            ]
+            if marked:
+                conn.execute(
+                    update(loans)
+                    .where(loans.c.id.in_(marked))
+                    .values(tell_origin=False, updated_at=now)
+                )
+                self._loan_history(
+                    conn,
+                    [(i, "released", f"{origin} was told that the loan ended") for i in marked],
+                    now,
+                )
+            return self._loans_by_id(conn, marked, history=False)
+
+        return self._run(work, write=True)
 
     def close(self) -> None:
         self._engine.dispose()
@@ -467,7 +705,207 @@ class SqlRequestStore:
         if not self._sqlite:
             # Two processes opening a new database must not both create the tables.
             conn.execute(text("SELECT pg_advisory_xact_lock(:key)"), {"key": _SCHEMA_LOCK})
+        found = inspect(conn)
+        if found.has_table("reservations") and "loan_id" not in {
+            column["name"] for column in found.get_columns("reservations")
+        }:
+            self._migrate_to_loans(conn)
         metadata.create_all(conn)
+
+    def _migrate_to_loans(self, conn: Connection) -> None:
+        """Bring a store made before loans up to date, in the schema transaction.
+
+        Such a store kept another cloud's hold on a robot as a "shadow" request
+        (application ``cloud:<origin>``). The reservations table is made anew
+        (a holder is now a request or a loan) with the requests' holds; the
+        active shadows end, so their robots are free: the origins' requests
+        lose them as robots whose loans ended (nothing tells those origins,
+        which ran the old protocol).
+        """
+        kept = [
+            dict(row._mapping)
+            for row in conn.execute(
+                text("SELECT robot_id, request_id, expires_at, created_at FROM reservations")
+            )
+        ]
+        conn.execute(text("DROP TABLE reservations"))
+        metadata.create_all(conn)
+        now = self._clock()
+        shadows = (
+            conn.execute(
+                select(requests.c.id).where(
+                    requests.c.application.like("cloud:%"),
+                    requests.c.state.in_(sorted(ACTIVE_STATES)),
+                )
+            )
+            .scalars()
+            .all()
+        )
+        for shadow in shadows:
+            conn.execute(
+                update(requests)
+                .where(requests.c.id == shadow)
+                .values(state="canceled", updated_at=now)
+            )
+            self._append(
+                conn, shadow, "state", "canceled", "shadow requests gave way to loans", now
+            )
+        rows = [
+            {
+                **row,
+                "expires_at": _aware(row["expires_at"]),
+                "created_at": _aware(row["created_at"]),
+            }
+            for row in kept
+            if row["request_id"] not in set(shadows)
+        ]
+        if rows:
+            conn.execute(insert(reservations).values(rows))
+        log.warning(
+            "store %s: moved to loans (%d reservations kept, %d shadow requests ended)",
+            self.url,
+            len(rows),
+            len(shadows),
+        )
+
+    # loans' rows
+
+    def _live_holds(
+        self, conn: Connection, robots: builtins.list[str], now: datetime
+    ) -> builtins.list[Any]:
+        """The holds on ``robots`` that have not lapsed; lapsed ones are deleted (free).
+
+        A lapsed lease is free, whoever held it; a lapsed loan ends.
+        """
+        rows = conn.execute(
+            select(
+                reservations.c.robot_id,
+                reservations.c.request_id,
+                reservations.c.loan_id,
+                reservations.c.expires_at,
+            ).where(reservations.c.robot_id.in_(robots))
+        ).all()
+        lapsed = [row for row in rows if rules.is_expired(row.expires_at, now)]
+        if lapsed:
+            self._drop(conn, lapsed, now)
+        return [row for row in rows if not rules.is_expired(row.expires_at, now)]
+
+    def _drop(self, conn: Connection, lapsed: Sequence[Any], now: datetime) -> builtins.list[str]:
+        """Delete lapsed holds (rows with robot_id and loan_id); end their loans."""
+        if not lapsed:
+            return []
+        conn.execute(
+            delete(reservations).where(
+                reservations.c.robot_id.in_([row.robot_id for row in lapsed]),
+                reservations.c.expires_at < now,
+            )
+        )
+        ended = [row.loan_id for row in lapsed if row.loan_id is not None]
+        self._end_loans(conn, ended, now, "the lease lapsed", False)
+        return ended
+
+    def _lent(
+        self,
+        conn: Connection,
+        origin: str,
+        request_id: str,
+        robots: builtins.list[str],
+        now: datetime,
+    ) -> dict[str, Any]:
+        """The live loans (not released, lease not lapsed) of ``robots`` to the origin request.
+
+        Locked until the transaction ends (PostgreSQL).
+        """
+        rows = conn.execute(
+            select(loans)
+            .where(
+                loans.c.origin == origin,
+                loans.c.request_id == request_id,
+                loans.c.robot_id.in_(robots),
+                loans.c.state.in_(_ACTIVE_LOANS),
+                _unexpired(loans.c.expires_at, now),
+            )
+            .order_by(loans.c.id)
+            .with_for_update()
+        ).all()
+        return {row.robot_id: row for row in rows}
+
+    def _make_firm(self, conn: Connection, rows: Sequence[Any], now: datetime, why: str) -> None:
+        """Make these loans (rows of ``_lent``) firm: their robots no longer lapse."""
+        ids = [row.id for row in rows if row.state == "leased"]
+        if not ids:
+            return
+        conn.execute(
+            update(loans)
+            .where(loans.c.id.in_(ids))
+            .values(state="firm", expires_at=None, updated_at=now)
+        )
+        conn.execute(
+            update(reservations).where(reservations.c.loan_id.in_(ids)).values(expires_at=None)
+        )
+        self._loan_history(conn, [(i, "firm", why) for i in ids], now)
+
+    def _end_loans(
+        self,
+        conn: Connection,
+        ids: builtins.list[str],
+        now: datetime,
+        why: str,
+        tell_origin: bool,
+    ) -> None:
+        if not ids:
+            return
+        conn.execute(delete(reservations).where(reservations.c.loan_id.in_(ids)))
+        conn.execute(
+            update(loans)
+            .where(loans.c.id.in_(ids))
+            .values(
+                state="released",
+                expires_at=None,
+                reason=why,
+                tell_origin=tell_origin,
+                updated_at=now,
+            )
+        )
+        self._loan_history(conn, [(i, "released", why) for i in ids], now)
+
+    def _loan_history(
+        self, conn: Connection, entries: builtins.list[tuple[str, str, str]], now: datetime
+    ) -> None:
+        """Add (loan id, state, detail) lines; their order is the table's own counter's."""
+        if entries:
+            conn.execute(
+                insert(loan_history),
+                [
+                    {"loan_id": loan_id, "state": state, "detail": detail, "at": now}
+                    for loan_id, state, detail in entries
+                ],
+            )
+
+    def _loans_by_id(
+        self, conn: Connection, ids: builtins.list[str], history: bool
+    ) -> builtins.list[Loan]:
+        if not ids:
+            return []
+        rows = conn.execute(select(loans).where(loans.c.id.in_(ids)).order_by(loans.c.id)).all()
+        lines: dict[str, builtins.list[StateChange]] = {row.id: [] for row in rows}
+        if history:
+            for line in conn.execute(
+                select(loan_history)
+                .where(loan_history.c.loan_id.in_(ids))
+                .order_by(loan_history.c.loan_id, loan_history.c.id)
+            ):
+                previous = lines[line.loan_id][-1].state if lines[line.loan_id] else None
+                lines[line.loan_id].append(
+                    StateChange(
+                        line.state,
+                        line.at,
+                        line.detail,
+                        "event" if line.state == previous else "state",
+                    )
+                )
+        by_id = {row.id: _loan(row, tuple(lines[row.id])) for row in rows}
+        return [by_id[i] for i in ids if i in by_id]
 
     # rows
 
@@ -497,16 +935,7 @@ class SqlRequestStore:
         """Reserve ``robots`` for the (locked) request, or return those another holds."""
         now = self._clock()
         expires_at = rules.lease_end(now, lease_seconds)
-        # A lapsed lease is free: delete it, whoever held it.
-        conn.execute(
-            delete(reservations).where(
-                reservations.c.robot_id.in_(robots), reservations.c.expires_at < now
-            )
-        )
-        held = {
-            row.robot_id: row
-            for row in conn.execute(select(reservations).where(reservations.c.robot_id.in_(robots)))
-        }
+        held = {row.robot_id: row for row in self._live_holds(conn, robots, now)}
         taken = [r for r in robots if r in held and held[r].request_id != request_id]
         if taken:
             return taken
@@ -599,3 +1028,34 @@ class SqlRequestStore:
             )
             for row in rows
         ]
+
+
+def _unexpired(column: Any, now: datetime) -> Any:
+    """A hold or loan that has not lapsed at ``now`` (None: it never lapses)."""
+    return or_(column.is_(None), column >= now)
+
+
+def _loan(row: Row[Any], history: tuple[StateChange, ...] = ()) -> Loan:
+    return Loan(
+        id=row.id,
+        robot=row.robot_id,
+        origin=row.origin,
+        request_id=row.request_id,
+        state=row.state,
+        expires_at=row.expires_at,
+        created_at=row.created_at,
+        updated_at=row.updated_at,
+        reason=row.reason,
+        tell_origin=bool(row.tell_origin),
+        history=history,
+    )
+
+
+def _aware(value: Any) -> datetime | None:
+    """A time read with raw SQL from either database, as an aware UTC datetime."""
+    if value is None:
+        return None
+    if isinstance(value, str):
+        value = datetime.fromisoformat(value)
+    assert isinstance(value, datetime)
+    return value.replace(tzinfo=UTC) if value.tzinfo is None else value.astimezone(UTC)

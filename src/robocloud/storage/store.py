@@ -12,7 +12,7 @@ from collections.abc import Sequence
 from typing import Any, Protocol
 
 from robocloud.errors import Unavailable
-from robocloud.storage.records import RequestRecord
+from robocloud.storage.records import Loan, RequestRecord
 
 
 class StoreUnavailable(Unavailable):
@@ -24,7 +24,12 @@ class StoreUnavailable(Unavailable):
 
 
 class RequestStore(Protocol):
-    """Requests, their state history, and robot reservations of one cloud.
+    """Requests, their state history, robot reservations and loans of one cloud.
+
+    A robot has at most one holder at a time: a request of this cloud (a
+    reservation) or a loan to a request of another cloud. ``reserve``,
+    ``replace`` and ``lend`` all refuse a robot another holder has, in the
+    same transaction that takes it.
 
     Errors: ``InvalidInput`` (a bad argument), ``NotFound`` (no such request),
     ``Conflict`` (a move the request's state does not allow), ``StoreUnavailable``.
@@ -141,7 +146,82 @@ class RequestStore(Protocol):
         ...
 
     def reservations(self, request_id: str | None = None) -> dict[str, str]:
-        """Robot id -> request id of every unexpired reservation (of one request if given)."""
+        """Robot id -> holder of every unexpired hold (of one request if given).
+
+        The holder is a request id, or for a robot lent to another cloud the
+        loan's id (``loan-...``), which is never a request id.
+        """
+        ...
+
+    # loans: robots of this cloud lent to other clouds' requests (robocloud.iaas.home)
+
+    def lend(
+        self,
+        origin: str,
+        request_id: str,
+        robot_ids: Sequence[str],
+        lease_seconds: float,
+    ) -> builtins.list[str]:
+        """Lease the robots to ``origin``'s request ``request_id``, all or nothing.
+
+        Returns [] on success, or the robots another holder has (in the order
+        given), and then nothing changes. A robot already lent to this origin
+        request stays lent: its lease is extended, never shortened; a firm
+        loan stays firm. A lapsed lease counts as free.
+        """
+        ...
+
+    def confirm_loans(
+        self, origin: str, request_id: str, robot_ids: Sequence[str]
+    ) -> builtins.list[str]:
+        """Make the loans of the robots to this origin request firm (those already firm stay).
+
+        Returns [] on success, or the robots with no live loan to it (never
+        leased, lapsed, released or lent to another), and then nothing changes:
+        a confirm never takes a robot.
+        """
+        ...
+
+    def end_loans(
+        self,
+        origin: str,
+        request_id: str,
+        robot_ids: Sequence[str] | None,
+        why: str,
+        *,
+        tell_origin: bool = False,
+    ) -> builtins.list[Loan]:
+        """Release the loans of the robots (None: all) to this origin request.
+
+        Returns the loans ended (those already released are left alone).
+        ``tell_origin``: the home ends them on its own, and the origin is to be
+        told when it asks (``untold_loans``).
+        """
+        ...
+
+    def lapse_loans(self) -> builtins.list[Loan]:
+        """Release every loan whose lease lapsed; returns them."""
+        ...
+
+    def loan_of(self, robot_id: str) -> Loan | None:
+        """The live loan holding the robot now (with its history), or None."""
+        ...
+
+    def loans(
+        self, origin: str | None = None, request_id: str | None = None
+    ) -> builtins.list[Loan]:
+        """Every live loan (of one origin, one origin request), oldest first (then by robot).
+
+        Without their history, which ``loan_of`` gives.
+        """
+        ...
+
+    def untold_loans(self, origin: str) -> builtins.list[Loan]:
+        """The loans of ``origin`` the home ended on its own and has not told it about."""
+        ...
+
+    def told(self, origin: str, loan_ids: Sequence[str]) -> builtins.list[Loan]:
+        """``origin`` learnt that these of its loans ended; returns those marked."""
         ...
 
     def close(self) -> None:

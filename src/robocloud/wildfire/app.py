@@ -1,52 +1,67 @@
-"""The wildfire server: the page's files and a narrow API over the IaaS.
+"""The wildfire server: the page's files, its live stream, and a narrow API over the IaaSs.
 
-The browser calls ``/api/...`` here; the server calls the IaaS with the
-application's key, so the key never reaches the page. Routes stay thin: each
-is one call of :class:`~robocloud.wildfire.iaas_client.IaasClient`, and the
-IaaS's errors come back with its status and its sentence, mapped in one place
-(:func:`_install_error_handlers`).
+The browser calls ``/api/...`` here; the server calls the IaaSs with the
+application's key, so the key never reaches the page. Routes stay thin: the
+live state comes from :class:`~robocloud.wildfire.live.LiveModel` (kept by
+:class:`~robocloud.wildfire.feed.LiveFeed`), calls on the operator's behalf go
+through :class:`~robocloud.wildfire.iaas_pool.IaasPool`, and errors become
+``{"detail": "a sentence"}`` in one place (:func:`_install_error_handlers`).
 
 ::
 
     GET  /                              the page
     GET  /static/...                    its scripts, styles and icon (no CDN)
-    GET  /api/health                    the IaaS's /healthz
-    GET  /api/robots                    every robot the IaaS sees, live
+    GET  /api/live                      server-sent events: a snapshot, then a delta a tick
+    GET  /api/health                    each IaaS's health; 200 while any answers
+    GET  /api/config                    the forest, the currency, the robots' time scale
+    GET  /api/robots                    the fleet as last heard (``heard`` set when stale)
     GET  /api/capabilities              capabilities of the fleet, with idle counts
-    GET  /api/clouds                    the clouds of the fleet, with robot counts
-    GET  /api/requests                  ?state=&limit=&before=, newest first
-    POST /api/requests                  send a task (MODEL.md's shape, plus a label)
+    GET  /api/clouds                    the clouds, their health and robot counts
+    GET  /api/requests                  ?state=&limit=&before=, newest first, every IaaS
+    POST /api/requests                  send a task (an Idempotency-Key makes retries safe)
     GET  /api/requests/{id}             a request's state, coalition, front, history
     POST /api/requests/{id}/cancel      cancel it
+
+A send that may have reached an IaaS without an answer coming back is 504 (or
+502) with ``"delivery": "unknown"``: the page then says the request is not
+confirmed yet and sends again with the same key until it knows.
 """
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
+import json
 import logging
-from collections.abc import AsyncIterator, Awaitable, Callable
+import math
+import re
+import time
+from collections.abc import AsyncIterator, Callable, Mapping
 from pathlib import Path
 from typing import Annotated, Any
 
 import httpx
-from fastapi import APIRouter, Depends, FastAPI, Header, Request, Response
+from fastapi import APIRouter, Depends, FastAPI, Header, Request
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import FileResponse, JSONResponse
+from fastapi.responses import FileResponse, JSONResponse, StreamingResponse
 from fastapi.staticfiles import StaticFiles
+from starlette.datastructures import MutableHeaders
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.middleware.gzip import GZipMiddleware
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from robocloud.wildfire.fleet_view import (
-    CapabilityOffer,
-    CloudSummary,
-    capability_offers,
-    cloud_summaries,
-)
-from robocloud.wildfire.iaas_client import IaasClient, IaasError
+from robocloud.wildfire.config import WildfireSettings
+from robocloud.wildfire.feed import LiveFeed, TooManyPages
+from robocloud.wildfire.iaas_client import IaasError, IaasUnreachable
+from robocloud.wildfire.iaas_pool import Endpoint, IaasPool
+from robocloud.wildfire.live import LiveModel, request_summary
 
 log = logging.getLogger(__name__)
 
 STATIC = Path(__file__).parent / "static"
 MAX_BODY_BYTES = 64 * 1024
+IDEMPOTENCY_KEY = re.compile(r"[\x21-\x7e]{1,200}")
+DEFAULT_PAGE = 25
 
 # The page loads nothing from anywhere but this server.
 SECURITY_HEADERS = {
@@ -62,33 +77,41 @@ SECURITY_HEADERS = {
 
 
 def create_wildfire_app(
-    iaas_url: str,
-    api_key: str | None,
+    settings: WildfireSettings,
     *,
-    timeout: float = 10.0,
     transport: httpx.AsyncBaseTransport | None = None,
+    clock: Callable[[], float] = time.time,
 ) -> FastAPI:
-    """The server for the IaaS at ``iaas_url``; ``transport`` lets tests fake the IaaS."""
+    """The server for ``settings.iaas``; ``transport`` lets tests fake the IaaSs."""
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
-        client = IaasClient(iaas_url, api_key, timeout=timeout, transport=transport)
-        app.state.iaas = client
+        pool = IaasPool(settings, transport)
+        model = LiveModel(settings, clock())
+        feed = LiveFeed(pool, model, clock)
+        app.state.pool, app.state.model, app.state.feed = pool, model, feed
+        running = asyncio.ensure_future(feed.run())
         try:
             yield
         finally:
-            await client.aclose()
+            running.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await running
+            await pool.aclose()
 
     app = FastAPI(
         title="robocloud Wildfire Suppression Application",
-        version="0.1.0",
+        version="0.2.0",
         description="Place the fire, send a request to the IaaS, follow it, cancel it.",
         lifespan=lifespan,
         docs_url=None,
         redoc_url=None,
     )
+    app.state.settings = settings
     _install_error_handlers(app)
-    _install_headers(app)
+    # JSON and the page's files; the live stream compresses itself (feed.py).
+    app.add_middleware(GZipMiddleware, minimum_size=1024)
+    app.add_middleware(SecurityHeaders)
     app.include_router(_api())
     app.mount("/static", StaticFiles(directory=STATIC), name="static")
 
@@ -99,65 +122,155 @@ def create_wildfire_app(
     return app
 
 
-def iaas_of(request: Request) -> IaasClient:
-    client: IaasClient = request.app.state.iaas
-    return client
+def pool_of(request: Request) -> IaasPool:
+    pool: IaasPool = request.app.state.pool
+    return pool
 
 
-Iaas = Annotated[IaasClient, Depends(iaas_of)]
+def model_of(request: Request) -> LiveModel:
+    model: LiveModel = request.app.state.model
+    return model
 
 
-def _json(content: bytes, status: int = 200) -> Response:
-    return Response(content, status_code=status, media_type="application/json")
+def feed_of(request: Request) -> LiveFeed:
+    feed: LiveFeed = request.app.state.feed
+    return feed
+
+
+Pool = Annotated[IaasPool, Depends(pool_of)]
+Model = Annotated[LiveModel, Depends(model_of)]
+Feed = Annotated[LiveFeed, Depends(feed_of)]
+
+
+def _with_home(record: dict[str, Any], endpoint: Endpoint) -> dict[str, Any]:
+    """The record, saying which cloud's IaaS holds it."""
+    return {**record, "held_by": endpoint.cloud}
 
 
 def _api() -> APIRouter:
     router = APIRouter(prefix="/api")
 
+    @router.get("/live")
+    async def live(request: Request, feed: Feed) -> StreamingResponse:
+        try:
+            subscriber, first = feed.subscribe()
+        except TooManyPages:
+            raise IaasError(503, "too many pages follow this server; close one and "
+                                 "reload.") from None
+        compress = "gzip" in request.headers.get("accept-encoding", "")
+        headers = {"Cache-Control": "no-store", "X-Accel-Buffering": "no"}
+        if compress:
+            headers["Content-Encoding"] = "gzip"
+            headers["Vary"] = "Accept-Encoding"
+        return StreamingResponse(feed.stream(subscriber, first, compress),
+                                 media_type="text/event-stream", headers=headers)
+
     @router.get("/health")
-    async def health(iaas: Iaas) -> dict[str, Any]:
-        return {"status": "ok", "iaas": await iaas.health()}
+    async def health(pool: Pool) -> JSONResponse:
+        if all(e.ok is None for e in pool.endpoints):
+            await pool.check_health()
+        endpoints = [e.as_json() for e in pool.endpoints]
+        if any(e.ok for e in pool.endpoints):
+            return JSONResponse({"status": "ok", "endpoints": endpoints})
+        return JSONResponse({"detail": "no IaaS answers: " + "; ".join(
+            f"{e.url}: {e.error}" for e in pool.endpoints), "endpoints": endpoints},
+            status_code=502)
+
+    @router.get("/config")
+    async def config(model: Model) -> dict[str, Any]:
+        return model.config_json()
 
     @router.get("/robots")
-    async def robots(iaas: Iaas) -> Response:
-        return _json(await iaas.robots_raw())
+    async def robots(model: Model) -> list[dict[str, Any]]:
+        return model.robots_json(time.time())
 
-    @router.get("/capabilities", response_model=list[CapabilityOffer])
-    async def capabilities(iaas: Iaas) -> list[CapabilityOffer]:
-        return capability_offers(_robot_list(await iaas.robots()))
+    @router.get("/capabilities")
+    async def capabilities(model: Model) -> list[dict[str, Any]]:
+        return model.capability_offers(time.time())
 
-    @router.get("/clouds", response_model=list[CloudSummary])
-    async def clouds(iaas: Iaas) -> list[CloudSummary]:
-        return cloud_summaries(_robot_list(await iaas.robots()))
+    @router.get("/clouds")
+    async def clouds(model: Model) -> list[dict[str, Any]]:
+        return model.clouds_json()
 
     @router.get("/requests")
-    async def list_requests(request: Request, iaas: Iaas) -> Response:
-        return _json(await iaas.list_requests(dict(request.query_params)))
+    async def list_requests(
+        pool: Pool, state: str | None = None, limit: str = str(DEFAULT_PAGE),
+        before: str | None = None,
+    ) -> dict[str, Any]:
+        if not limit.isdigit():
+            raise IaasError(422, "limit must be a whole number from 1 to 200.")
+        page = await pool.list_requests(state or None, int(limit), before or None,
+                                        pool.settings.timeout)
+        return {
+            "items": [request_summary(record, endpoint.cloud) for record, endpoint in
+                      page["items"]],
+            "next": page["next"],
+            "missing": page["missing"],
+        }
 
     @router.post("/requests", status_code=202)
     async def create_request(
         request: Request,
-        iaas: Iaas,
-        idempotency_key: Annotated[str | None, Header(max_length=200)] = None,
-    ) -> Response:
+        pool: Pool,
+        model: Model,
+        idempotency_key: Annotated[str | None, Header()] = None,
+    ) -> JSONResponse:
+        if idempotency_key is not None and not IDEMPOTENCY_KEY.fullmatch(idempotency_key):
+            raise IaasError(422, "the Idempotency-Key header must be 1 to 200 printable "
+                                 "characters without spaces.")
         body = await _bounded_body(request)
-        return _json(await iaas.create_request(body, idempotency_key), status=202)
+        _check_task(body, model)
+        record, endpoint = await pool.create_request(body, idempotency_key)
+        model.ingest_request(record, endpoint.cloud, time.time())
+        return JSONResponse(_with_home(record, endpoint), status_code=202)
 
     @router.get("/requests/{request_id}")
-    async def get_request(request_id: str, iaas: Iaas) -> Response:
-        return _json(await iaas.get_request(request_id))
+    async def get_request(request_id: str, pool: Pool, model: Model) -> dict[str, Any]:
+        record, endpoint = await pool.get_request(request_id)
+        model.ingest_request(record, endpoint.cloud, time.time())
+        return _with_home(record, endpoint)
 
     @router.post("/requests/{request_id}/cancel")
-    async def cancel_request(request_id: str, iaas: Iaas) -> Response:
-        return _json(await iaas.cancel_request(request_id))
+    async def cancel_request(request_id: str, pool: Pool, model: Model) -> dict[str, Any]:
+        record, endpoint = await pool.cancel_request(request_id)
+        model.ingest_request(record, endpoint.cloud, time.time())
+        return _with_home(record, endpoint)
 
     return router
 
 
-def _robot_list(robots: Any) -> list[dict[str, Any]]:
-    if not isinstance(robots, list):
-        raise IaasError(502, "the IaaS's robot list is not a list.")
-    return [r for r in robots if isinstance(r, dict)]
+def _check_task(body: bytes, model: LiveModel) -> None:
+    """What this application knows better than the IaaS: its forest and its fleet.
+
+    Anything else (a missing field, a wrong type) is left to the IaaS, whose
+    sentence comes back as it is.
+    """
+    try:
+        task = json.loads(body)
+    except ValueError:
+        raise IaasError(422, "the body is not JSON: send a task as a JSON object.") from None
+    if not isinstance(task, Mapping):
+        return
+    location = task.get("location")
+    if (isinstance(location, list) and len(location) == 2
+            and all(isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+                    for v in location)):
+        refusal = model.settings.forest.refusal(float(location[0]), float(location[1]))
+        if refusal:
+            raise IaasError(422, f"location: {refusal}")
+    known = model.known_capabilities()
+    if not known:
+        return  # the fleet is not heard yet: the IaaS decides
+    for kind in ("actuating", "sensing"):
+        wanted = task.get(kind)
+        if not isinstance(wanted, Mapping):
+            continue
+        for name in wanted:
+            if name not in known:
+                offered = ", ".join(sorted(known)[:20])
+                raise IaasError(422, f"{kind}.{str(name)[:60]}: no robot of the federation "
+                                     f"has the capability {str(name)[:60]!r}; the fleet "
+                                     f"has {offered}.")
 
 
 async def _bounded_body(request: Request) -> bytes:
@@ -176,7 +289,13 @@ def _install_error_handlers(app: FastAPI) -> None:
 
     async def iaas_error(_: Request, error: Exception) -> JSONResponse:
         assert isinstance(error, IaasError)
-        return JSONResponse({"detail": error.detail}, status_code=error.status)
+        body: dict[str, Any] = {"detail": error.detail}
+        if isinstance(error, IaasUnreachable):
+            # Whether the IaaS may have acted: the page's truthful "not confirmed yet".
+            body["delivery"] = "unknown" if error.maybe_delivered else "none"
+        elif error.status >= 500:
+            body["delivery"] = "unknown"
+        return JSONResponse(body, status_code=error.status)
 
     async def http_error(_: Request, error: Exception) -> JSONResponse:
         assert isinstance(error, StarletteHTTPException)
@@ -186,8 +305,10 @@ def _install_error_handlers(app: FastAPI) -> None:
         return JSONResponse({"detail": text}, status_code=error.status_code)
 
     async def validation_error(_: Request, error: Exception) -> JSONResponse:
-        # The only input FastAPI checks here is the Idempotency-Key header.
-        return JSONResponse({"detail": "the Idempotency-Key header is too long."}, status_code=422)
+        assert isinstance(error, RequestValidationError)
+        where = ".".join(str(p) for p in (error.errors() or [{}])[0].get("loc", ()))
+        return JSONResponse({"detail": f"{where or 'the request'} is not valid."},
+                            status_code=422)
 
     async def unexpected(_: Request, error: Exception) -> JSONResponse:
         log.exception("unexpected error", exc_info=error)
@@ -201,13 +322,29 @@ def _install_error_handlers(app: FastAPI) -> None:
     app.add_exception_handler(Exception, unexpected)
 
 
-def _install_headers(app: FastAPI) -> None:
-    @app.middleware("http")
-    async def headers(
-        request: Request, call_next: Callable[[Request], Awaitable[Response]]
-    ) -> Response:
-        response = await call_next(request)
-        response.headers.update(SECURITY_HEADERS)
-        if request.url.path.startswith("/api/"):
-            response.headers["Cache-Control"] = "no-store"
-        return response
+class SecurityHeaders:
+    """Security headers on every answer, and no caching of the API's live answers.
+
+    Plain ASGI rather than ``@app.middleware``: the live stream passes through
+    untouched, event by event.
+    """
+
+    def __init__(self, app: ASGIApp) -> None:
+        self.app = app
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        api = str(scope.get("path", "")).startswith("/api/")
+
+        async def sending(message: Message) -> None:
+            if message["type"] == "http.response.start":
+                headers = MutableHeaders(scope=message)
+                for name, value in SECURITY_HEADERS.items():
+                    headers[name] = value
+                if api:
+                    headers["Cache-Control"] = "no-store"
+            await send(message)
+
+        await self.app(scope, receive, sending)

@@ -2,23 +2,28 @@
 
 ::
 
-    robocloud wildfire --iaas http://127.0.0.1:8101 [--api-key KEY] [--listen 127.0.0.1:8000]
+    robocloud wildfire --iaas http://127.0.0.1:8101 [--iaas URL ...] [--api-key KEY]
+                       [--listen 127.0.0.1:8000] [--forest 0,0,2000,2000] [--currency credits]
     python -m robocloud.wildfire.command --iaas ...   (the same, without the CLI)
 
-The key may also come from ``ROBOCLOUD_WILDFIRE_API_KEY``, which keeps it out of
-the process list. The server runs until interrupted.
+``--iaas`` may be repeated (the IaaSs of one federation, in order of
+preference): the page keeps working while any one answers. The key may also
+come from ``ROBOCLOUD_WILDFIRE_API_KEY``, which keeps it out of the process
+list. The server runs until interrupted.
 """
 
 from __future__ import annotations
 
 import argparse
 import logging
+import math
 import os
 import sys
 from collections.abc import Mapping, Sequence
 from urllib.parse import urlsplit
 
 from robocloud.errors import InvalidInput, RoboCloudError
+from robocloud.wildfire.config import MAX_CURRENCY_CHARS, Forest, WildfireSettings
 
 API_KEY_ENV = "ROBOCLOUD_WILDFIRE_API_KEY"
 DEFAULT_LISTEN = ("127.0.0.1", 8000)
@@ -39,13 +44,30 @@ def iaas_url(text: str) -> str:
     return text.rstrip("/")
 
 
+def forest_area(text: str) -> Forest:
+    try:
+        return Forest.parse(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+
+
+def currency_label(text: str) -> str:
+    label = text.strip()
+    if not label or len(label) > MAX_CURRENCY_CHARS or not label.isprintable():
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is not a label of 1 to {MAX_CURRENCY_CHARS} printable characters")
+    return label
+
+
 def add_wildfire_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--iaas",
         required=True,
+        action="append",
         type=iaas_url,
         metavar="URL",
-        help="the IaaS's HTTP API, e.g. http://127.0.0.1:8101",
+        help="an IaaS's HTTP API, e.g. http://127.0.0.1:8101; repeat it for the other clouds "
+        "of the federation (requests go to the first that answers)",
     )
     parser.add_argument(
         "--api-key",
@@ -65,7 +87,22 @@ def add_wildfire_arguments(parser: argparse.ArgumentParser) -> None:
         type=float,
         default=10.0,
         metavar="SECONDS",
-        help="how long to wait for the IaaS (default 10)",
+        help="how long to wait for the IaaS on the operator's behalf (default 10)",
+    )
+    parser.add_argument(
+        "--forest",
+        type=forest_area,
+        default=Forest.parse("0,0,2000,2000"),
+        metavar="X0,Y0,X1,Y1",
+        help="the forest the application protects, in metres; a fire outside it is refused "
+        "(default 0,0,2000,2000, the simulator's forest)",
+    )
+    parser.add_argument(
+        "--currency",
+        type=currency_label,
+        default="credits",
+        metavar="LABEL",
+        help="the unit costs are shown in (default credits)",
     )
     parser.add_argument(
         "--log-level", default="info", choices=("debug", "info", "warning", "error")
@@ -83,7 +120,7 @@ def wildfire_command(args: argparse.Namespace, environ: Mapping[str, str] | None
 
     from robocloud.wildfire.app import create_wildfire_app
 
-    if args.timeout <= 0:
+    if not (math.isfinite(args.timeout) and args.timeout > 0):
         raise InvalidInput("--timeout must be positive.", "--timeout")
     env = os.environ if environ is None else environ
     api_key = args.api_key or env.get(API_KEY_ENV) or None
@@ -92,11 +129,21 @@ def wildfire_command(args: argparse.Namespace, environ: Mapping[str, str] | None
         level=args.log_level.upper(),
         format="%(asctime)s wildfire %(levelname)s %(name)s: %(message)s",
     )
-    app = create_wildfire_app(args.iaas, api_key, timeout=args.timeout)
+    if len(set(args.iaas)) != len(args.iaas):
+        raise InvalidInput("an --iaas URL is given twice.", "--iaas")
+    settings = WildfireSettings(
+        iaas=tuple(args.iaas),
+        api_key=api_key,
+        forest=args.forest,
+        currency=args.currency,
+        timeout=args.timeout,
+        poll_timeout=min(3.0, args.timeout),
+    )
+    app = create_wildfire_app(settings)
     config = uvicorn.Config(app, host=host, port=port, log_level=args.log_level, access_log=False)
     server = uvicorn.Server(config)
     print(
-        f"wildfire: serving {page_url(host, port)} for the IaaS at {args.iaas}"
+        f"wildfire: serving {page_url(host, port)} for the IaaS at {', '.join(args.iaas)}"
         f"{'' if api_key else ' (no API key given)'}; Ctrl-C stops",
         file=sys.stderr,
         flush=True,
@@ -108,7 +155,7 @@ def wildfire_command(args: argparse.Namespace, environ: Mapping[str, str] | None
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="robocloud wildfire",
-        description="Serve the Wildfire Suppression Application for one IaaS.",
+        description="Serve the Wildfire Suppression Application for one or more IaaSs.",
     )
     add_wildfire_arguments(parser)
     args = parser.parse_args(argv)

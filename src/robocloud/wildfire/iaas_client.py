@@ -1,9 +1,12 @@
-"""The IaaS's HTTP API as the wildfire server calls it: one client, its key attached.
+"""One IaaS's HTTP API as the wildfire server calls it: one client, its key attached.
 
 The errors it raises, each carrying what the page needs to show::
 
     IaasError               the IaaS answered with an error: its status and its sentence
-    └── IaasUnreachable     no answer at all (refused, timed out, not HTTP): 502
+    └── IaasUnreachable     no usable answer (refused, timed out, not JSON): 502 or 504
+                            ``maybe_delivered`` says whether the IaaS may have
+                            acted on the call all the same (it was sent, and
+                            then the answer never came)
 
 ``robocloud.wildfire.app`` maps them to HTTP responses, in one place.
 """
@@ -19,7 +22,11 @@ import httpx
 # Request ids travel inside a path: anything else could walk to another route.
 REQUEST_ID = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]{0,127}")
 LIST_PARAMETERS = ("state", "limit", "before")
-FEDERATION = {"scope": "federation"}
+# 100,000 robots are about 30 MB of JSON: an answer beyond this is not an IaaS's.
+MAX_ANSWER_BYTES = 64 * 1024 * 1024
+
+# Errors raised before a byte of the call left: the IaaS cannot have acted on it.
+NOT_SENT = (httpx.ConnectError, httpx.ConnectTimeout, httpx.PoolTimeout, httpx.UnsupportedProtocol)
 
 
 class IaasError(Exception):
@@ -32,13 +39,14 @@ class IaasError(Exception):
 
 
 class IaasUnreachable(IaasError):
-    def __init__(self, url: str, cause: str) -> None:
-        super().__init__(502, f"the IaaS at {url} cannot be reached ({cause}).")
+    def __init__(self, url: str, cause: str, *, maybe_delivered: bool, timed_out: bool) -> None:
+        super().__init__(504 if timed_out else 502, f"the IaaS at {url} {cause}.")
         self.url = url
+        self.maybe_delivered = maybe_delivered
 
 
 class IaasClient:
-    """Thin async calls to one IaaS; answers are JSON bytes or parsed JSON."""
+    """Thin async calls to one IaaS; answers are parsed JSON."""
 
     def __init__(
         self,
@@ -59,44 +67,77 @@ class IaasClient:
     async def aclose(self) -> None:
         await self._http.aclose()
 
-    async def health(self) -> Any:
-        return json.loads(await self._call("GET", "/healthz"))
+    async def health(self, timeout: float | None = None) -> dict[str, Any]:
+        return _object(await self._call("GET", "/healthz", timeout=timeout), self.base_url)
 
-    async def robots(self) -> Any:
-        return json.loads(await self.robots_raw())
+    async def clouds(self, timeout: float | None = None) -> list[Any]:
+        return _list(await self._call("GET", "/v1/clouds", timeout=timeout), self.base_url)
 
-    async def robots_raw(self) -> bytes:
+    async def robots(self, scope: str = "federation", timeout: float | None = None) -> list[Any]:
         """Every robot the IaaS sees: its own and, in a federation, every live cloud's."""
-        return await self._call("GET", "/v1/robots", params=FEDERATION)
+        answer = await self._call("GET", "/v1/robots", params={"scope": scope}, timeout=timeout)
+        return _list(answer, self.base_url)
 
-    async def list_requests(self, params: dict[str, str]) -> bytes:
+    async def list_requests(
+        self, params: dict[str, str], timeout: float | None = None
+    ) -> dict[str, Any]:
         kept = {k: v for k, v in params.items() if k in LIST_PARAMETERS}
-        return await self._call("GET", "/v1/requests", params=kept)
+        answer = await self._call("GET", "/v1/requests", params=kept, timeout=timeout)
+        page = _object(answer, self.base_url)
+        if not isinstance(page.get("items"), list):
+            raise _not_json(self.base_url, "its request list has no items")
+        return page
 
-    async def create_request(self, body: bytes, idempotency_key: str | None = None) -> bytes:
+    async def create_request(self, body: bytes, idempotency_key: str | None) -> dict[str, Any]:
         headers = {"Content-Type": "application/json"}
         if idempotency_key:
             headers["Idempotency-Key"] = idempotency_key
-        return await self._call("POST", "/v1/requests", content=body, headers=headers)
+        answer = await self._call("POST", "/v1/requests", content=body, headers=headers)
+        return _object(answer, self.base_url)
 
-    async def get_request(self, request_id: str) -> bytes:
-        return await self._call("GET", f"/v1/requests/{checked_id(request_id)}")
+    async def get_request(self, request_id: str, timeout: float | None = None) -> dict[str, Any]:
+        answer = await self._call("GET", f"/v1/requests/{checked_id(request_id)}", timeout=timeout)
+        return _object(answer, self.base_url)
 
-    async def cancel_request(self, request_id: str) -> bytes:
-        return await self._call("POST", f"/v1/requests/{checked_id(request_id)}/cancel")
+    async def cancel_request(self, request_id: str) -> dict[str, Any]:
+        answer = await self._call("POST", f"/v1/requests/{checked_id(request_id)}/cancel")
+        return _object(answer, self.base_url)
 
-    async def _call(self, method: str, path: str, **kwargs: Any) -> bytes:
+    async def _call(
+        self, method: str, path: str, *, timeout: float | None = None, **kwargs: Any
+    ) -> Any:
+        if timeout is not None:
+            kwargs["timeout"] = timeout
         try:
-            answer = await self._http.request(method, path, **kwargs)
+            async with self._http.stream(method, path, **kwargs) as answer:
+                content = await _bounded(answer)
+        except NOT_SENT as error:
+            raise IaasUnreachable(
+                self.base_url,
+                f"cannot be reached ({_cause(error)})",
+                maybe_delivered=False,
+                timed_out=isinstance(error, httpx.TimeoutException),
+            ) from None
         except httpx.TimeoutException:
-            raise IaasUnreachable(self.base_url, "it did not answer in time") from None
+            raise IaasUnreachable(
+                self.base_url, "did not answer in time", maybe_delivered=True, timed_out=True
+            ) from None
         except httpx.HTTPError as error:
-            raise IaasUnreachable(self.base_url, _cause(error)) from None
+            raise IaasUnreachable(
+                self.base_url,
+                f"broke off its answer ({_cause(error)})",
+                maybe_delivered=True,
+                timed_out=False,
+            ) from None
+        if content is None:
+            raise _not_json(self.base_url, f"its answer is over {MAX_ANSWER_BYTES} bytes")
         if answer.status_code >= 400:
-            raise IaasError(answer.status_code, _sentence(answer))
-        if not _is_json(answer.content):
-            raise IaasUnreachable(self.base_url, "its answer is not JSON")
-        return answer.content
+            raise IaasError(answer.status_code, _sentence(answer.status_code,
+                                                          answer.reason_phrase, content))
+        try:
+            return json.loads(content)
+        except ValueError:
+            raise _not_json(self.base_url, "its answer is not JSON") from None
 
 
 def checked_id(request_id: str) -> str:
@@ -105,22 +146,42 @@ def checked_id(request_id: str) -> str:
     return request_id
 
 
-def _sentence(answer: httpx.Response) -> str:
+def _not_json(url: str, what: str) -> IaasUnreachable:
+    # An answer came, so the IaaS (or a proxy before it) may have acted.
+    return IaasUnreachable(url, f"gave no usable answer: {what}", maybe_delivered=True,
+                           timed_out=False)
+
+
+def _object(value: Any, url: str) -> dict[str, Any]:
+    if not isinstance(value, dict):
+        raise _not_json(url, "its answer is not a JSON object")
+    return value
+
+
+def _list(value: Any, url: str) -> list[Any]:
+    if not isinstance(value, list):
+        raise _not_json(url, "its answer is not a JSON list")
+    return value
+
+
+def _sentence(status: int, reason: str, content: bytes) -> str:
     try:
-        detail = answer.json().get("detail")
+        detail = json.loads(content).get("detail")
     except (ValueError, AttributeError):
         detail = None
     if isinstance(detail, str) and detail:
-        return detail
-    return f"the IaaS answered {answer.status_code} {answer.reason_phrase} without a reason."
+        return detail[:1000]
+    return f"the IaaS answered {status} {reason} without a reason."
 
 
-def _is_json(content: bytes) -> bool:
-    try:
-        json.loads(content)
-    except ValueError:
-        return False
-    return True
+async def _bounded(answer: httpx.Response) -> bytes | None:
+    """The answer's body, or None past ``MAX_ANSWER_BYTES`` (read no further)."""
+    body = bytearray()
+    async for chunk in answer.aiter_bytes():
+        body += chunk
+        if len(body) > MAX_ANSWER_BYTES:
+            return None
+    return bytes(body)
 
 
 def _cause(error: httpx.HTTPError) -> str:

@@ -1,7 +1,13 @@
 // The wildfire server's narrow API. Calls never throw: each gives
-// {ok, status, data, detail}, with detail the sentence to show on failure.
+// {ok, status, data, detail, delivery}, with detail the sentence to show on
+// failure and delivery, for a failure, whether the call may have been acted
+// on all the same ("unknown") or surely was not ("none").
+
+const TIMEOUT_MS = 20000;  // beyond the server's own wait for an IaaS
 
 async function call(method, path, body, headers = {}) {
+  const abort = new AbortController();
+  const timer = setTimeout(() => abort.abort(), TIMEOUT_MS);
   let response;
   try {
     response = await fetch(path, {
@@ -9,9 +15,15 @@ async function call(method, path, body, headers = {}) {
       headers: body === undefined ? headers : { "Content-Type": "application/json", ...headers },
       body: body === undefined ? undefined : JSON.stringify(body),
       cache: "no-store",
+      signal: abort.signal,
     });
   } catch {
-    return { ok: false, status: 0, data: null, detail: "the wildfire server cannot be reached." };
+    // The call may have left before the connection broke: nothing says it did not arrive.
+    return { ok: false, status: 0, data: null, delivery: "unknown",
+      detail: abort.signal.aborted ? "the wildfire server did not answer in time"
+        : "the wildfire server cannot be reached" };
+  } finally {
+    clearTimeout(timer);
   }
   let data = null;
   try {
@@ -19,18 +31,20 @@ async function call(method, path, body, headers = {}) {
   } catch {
     data = null;
   }
-  if (response.ok) return { ok: true, status: response.status, data, detail: null };
-  const detail = data && typeof data.detail === "string"
-    ? data.detail : `the server answered ${response.status}.`;
-  return { ok: false, status: response.status, data, detail };
+  if (response.ok) return { ok: true, status: response.status, data, detail: null, delivery: "done" };
+  const detail = data && typeof data.detail === "string" ? data.detail : `the server answered ${response.status}`;
+  const delivery = data && data.delivery ? data.delivery : (response.status >= 500 ? "unknown" : "refused");
+  return { ok: false, status: response.status, data, detail, delivery };
 }
 
 export const api = {
-  health: () => call("GET", "/api/health"),
-  robots: () => call("GET", "/api/robots"),
-  capabilities: () => call("GET", "/api/capabilities"),
-  requests: (limit = 50) => call("GET", `/api/requests?limit=${limit}`),
+  requests: ({ state = "", limit = 25, before = "" } = {}) => {
+    const query = new URLSearchParams({ limit: String(limit) });
+    if (state) query.set("state", state);
+    if (before) query.set("before", before);
+    return call("GET", `/api/requests?${query}`);
+  },
   request: (id) => call("GET", `/api/requests/${encodeURIComponent(id)}`),
-  send: (task, key) => call("POST", "/api/requests", task, key ? { "Idempotency-Key": key } : {}),
+  send: (task, key) => call("POST", "/api/requests", task, { "Idempotency-Key": key }),
   cancel: (id) => call("POST", `/api/requests/${encodeURIComponent(id)}/cancel`),
 };

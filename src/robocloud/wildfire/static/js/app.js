@@ -1,209 +1,381 @@
-// The Wildfire Suppression Application: wires the map, the form, the REQUESTS
-// list and the REQUEST STATE panel to the wildfire server, refreshed every second.
+// The Wildfire Suppression Application: wires the live feed, the map, the
+// form, the tables and the REQUEST STATE panel together.
 
 import { api } from "./api.js";
-import { drawFront } from "./front.js";
 import { RequestForm } from "./form.js";
+import { Live } from "./live.js";
 import { ForestMap } from "./map.js";
+import { Sender } from "./sender.js";
+import { requestName, StatePanel } from "./state.js";
+import { REQUESTS_PER_PAGE, RequestsTable, RobotsTable } from "./tables.js";
 import {
-  FINAL_STATES, assignCloudColours, cloudColour, el, fmtClock, fmtDuration, fmtNumber, fmtPoint,
-  fmtShortDuration,
+  $, el, FINAL_STATES, fmtAge, fmtClock, fmtDuration, fmtNumber, humanize, REQUEST_STATES, sentence,
+  setCloudColours, STATUSES,
 } from "./util.js";
 
-const REFRESH_MS = 1000;
-const CAPABILITIES_EVERY = 3;      // ticks
-const STATUSES = ["idle", "reserved", "busy", "charging", "offline"];
-const PRIORITY = { balanced: "balanced", time: "time critical", cost: "cost critical" };
-
-const $ = (id) => document.getElementById(id);
-
-const state = {
+const page = {
   selectedId: null,
-  selected: null,          // the selected request, as the IaaS last gave it
-  selectedKey: "",         // its JSON, to redraw only on change
-  items: new Map(),        // request id -> list entry {li, button, ...}
-  autoSelected: false,
-  tick: 0,
-  clouds: "",
+  selected: null,          // the selected request, as its IaaS last gave it
+  selectedRev: null,
+  requestsQuery: { state: "", cursors: [""], index: 0, next: null },
+  reloadTimer: null,
+  unread: 0,
+  bannerId: null,
+  cardRobot: null,
+  tab: "send",
+  tableTab: "requests",
+  snapshots: 0,
 };
 
-// --- announcements for screen readers (the panels refresh too often to be live) ---
+// --- announcements for screen readers (the panels change too often to be live) ---
 const announcer = el("p", { class: "sr-only", "aria-live": "polite", id: "announcer" });
 document.body.append(announcer);
 function announce(text) {
   announcer.textContent = text;
 }
 
-// --- the map and the form --------------------------------------------------
+// --- the parts -----------------------------------------------------------------
+const live = new Live({ onSnapshot, onDelta, onLink });
 const map = new ForestMap($("map"), {
   onPlace: (point) => form.setLocation(point),
+  onRobot: (id) => showRobotCard(id),
 });
+map.ageOf = (robot) => live.age(robot);
 const form = new RequestForm($("request-form"), {
-  onSubmit: send,
+  onSubmit: (task) => sender.submit(task),
   onLocation: (point) => map.setFire(point),
 });
+const sender = new Sender({ api, onChange: showSend });
+const statePanel = new StatePanel($("state-body"), { live });
+const robotsTable = new RobotsTable($("robots-table"), {
+  live,
+  onRow: (id) => showRobotCard(id),
+  summary: $("robots-count"),
+  pager: { previous: $("robots-previous"), next: $("robots-next"), label: $("robots-page") },
+});
+robotsTable.visible = false;
+const requestsTable = new RequestsTable($("requests-table"), { live, onRow: (id) => select(id) });
 
-async function send(task) {
-  const answer = await api.send(task, newKey());
-  if (!answer.ok) {
-    if (answer.status === 422) {
-      form.showServerError(answer.detail);
-      form.setResult("The IaaS did not accept the request: see the field marked in red.", "error");
-    } else {
-      form.showErrors({ form: sentence(answer.detail) });
-      form.setResult("The request was not sent.", "error");
-    }
-    return;
+// --- the live feed -----------------------------------------------------------------
+function onSnapshot() {
+  // A snapshot after the first is a reconnection: what was missed is read again.
+  if (page.snapshots++) {
+    reloadRequests(0);
+    refreshSelected();
   }
-  const request = answer.data;
-  form.setResult(`Sent ${request.id}: ${request.state}.`, "ok");
-  announce(`Request ${request.id} sent.`);
-  await refreshList();
-  await select(request.id);
-}
-
-function newKey() {
-  const bytes = new Uint8Array(16);
-  crypto.getRandomValues(bytes);
-  return [...bytes].map((b) => b.toString(16).padStart(2, "0")).join("");
-}
-
-function sentence(text) {
-  const t = String(text || "").trim();
-  const s = t.charAt(0).toUpperCase() + t.slice(1);
-  return /[.!?]$/.test(s) ? s : `${s}.`;
-}
-
-// --- the fleet ---------------------------------------------------------------
-async function refreshRobots() {
-  const answer = await api.robots();
-  const connection = $("connection");
-  if (!answer.ok || !Array.isArray(answer.data)) {
-    if (connection.dataset.state !== "down") announce(`The IaaS cannot be reached: ${answer.detail}`);
-    connection.dataset.state = "down";
-    $("connection-text").textContent = sentence(answer.detail || "no robots");
-    return;
-  }
-  const robots = answer.data;
-  connection.dataset.state = "ok";
-  $("connection-text").textContent = `live · ${fmtNumber(robots.length)} robots`;
-  assignCloudColours(new Set(robots.map((r) => r.cloud)));
-  map.update(robots);
-  drawClouds(robots);
-  const counts = Object.fromEntries(STATUSES.map((s) => [s, 0]));
-  for (const robot of robots) counts[STATUSES.includes(robot.status) ? robot.status : "offline"] += 1;
-  for (const s of STATUSES) $(`count-${s}`).textContent = fmtNumber(counts[s]);
-  const clouds = new Set(robots.map((r) => r.cloud)).size;
-  $("forest-summary").textContent = `${fmtNumber(robots.length)} robots of ${clouds} cloud${clouds === 1 ? "" : "s"} · metres, grid ${map.gridStep()} m`;
-}
-
-function drawClouds(robots) {
-  const byCloud = new Map();
-  for (const robot of robots) byCloud.set(robot.cloud, (byCloud.get(robot.cloud) || 0) + 1);
-  const key = JSON.stringify([...byCloud].sort());
-  if (key === state.clouds) return;
-  state.clouds = key;
-  $("cloud-legend").replaceChildren(...[...byCloud].sort().map(([cloud, count]) => {
-    const swatch = el("span", { class: "swatch", "aria-hidden": "true" });
-    swatch.style.background = cloudColour(cloud);
-    return el("li", { "data-cloud": cloud }, swatch, el("span", { text: cloud }), el("b", { text: fmtNumber(count) }));
-  }));
-}
-
-async function refreshCapabilities() {
-  const answer = await api.capabilities();
-  if (answer.ok && Array.isArray(answer.data)) form.setCapabilities(answer.data);
-}
-
-async function refreshHealth() {
-  const answer = await api.health();
-  $("iaas-name").textContent = answer.ok && answer.data?.iaas?.cloud
-    ? `IaaS ${answer.data.iaas.cloud}` : "IaaS not reachable";
-}
-
-// --- REQUESTS ----------------------------------------------------------------
-function taskSummary(task) {
-  const needs = Object.entries({ ...(task.actuating || {}), ...(task.sensing || {}) })
-    .map(([name, count]) => `${name}×${count}`);
-  return `${fmtPoint(task.location)} · ${needs.join(", ")}`;
-}
-
-async function refreshList() {
-  const answer = await api.requests(50);
-  if (!answer.ok || !answer.data) return;
-  const items = [...answer.data.items].sort((a, b) => b.created_at.localeCompare(a.created_at));
-  const list = $("request-list");
+  setCloudColours(live.clouds);
+  applyConfig();
   const seen = new Set();
-  let previous = null;
-  for (const request of items) {
-    seen.add(request.id);
-    let entry = state.items.get(request.id);
-    if (!entry) {
-      entry = listEntry(request);
-      state.items.set(request.id, entry);
+  for (const robot of live.robots.values()) {
+    map.upsert(robot);
+    seen.add(robot.id);
+  }
+  for (const id of [...map.robots.keys()]) if (!seen.has(id)) map.remove(id);
+  map.drawSelection();
+  form.setCapabilities(live.capabilities);
+  fillCapabilityFilter();
+  drawHeader();
+  drawCounts();
+  drawAlerts();
+  robotsTable.render();
+  for (const summary of live.requests.values()) requestsTable.update(summary);
+  requestsTable.render();
+}
+
+function onDelta(_, change) {
+  if (change.data.clouds) setCloudColours(live.clouds);
+  if (change.data.config) applyConfig();
+  for (const id of change.added) map.upsert(live.robots.get(id));
+  for (const id of change.changed) map.upsert(live.robots.get(id));
+  for (const id of change.removed) map.remove(id);
+  if (page.selected && page.selected.coalition) map.drawSelection();
+  if (change.data.capabilities) {
+    form.setCapabilities(live.capabilities);
+    fillCapabilityFilter();
+  }
+  drawHeader();
+  drawCounts();
+  if (change.alerts.length) newAlerts(change.alerts);
+  robotsTable.render();
+  followRequests(change.requests);
+  if (page.cardRobot) showRobotCard(page.cardRobot, false);
+}
+
+function onLink(link) {
+  document.body.dataset.link = link;
+  if (link === "live") {
+    if (page.lostAt) {
+      newAlerts([{ id: `link-${Date.now()}`, at: live.now(), level: "ok", kind: "server",
+        text: "The wildfire server answers again: the page is live." }], true);
+      page.lostAt = null;
     }
-    updateEntry(entry, request);
-    // Keep the order newest first without moving focus.
-    const expected = previous ? previous.li.nextSibling : list.firstChild;
-    if (expected !== entry.li) {
-      if (previous) previous.li.after(entry.li); else list.prepend(entry.li);
+  } else if (link !== "connecting" && !page.lostAt) {
+    page.lostAt = live.localNow();
+    newAlerts([{ id: `link-${Date.now()}`, at: live.now(), level: "danger", kind: "server",
+      text: link === "down" ? "The wildfire server cannot be reached: the page shows the fleet and the requests as last heard, greyed."
+        : "The wildfire server has sent nothing for 5 s: the page shows what it last heard, greyed." }], true);
+  }
+  drawHeader();
+}
+
+function applyConfig() {
+  const config = live.config;
+  if (!config) return;
+  map.setForest(config.forest);
+  form.setForest(config.forest);
+  form.setUnits(config.currency, live.timeScale());
+  const f = config.forest;
+  $("forest-hint").textContent = `The forest: x ${fmtNumber(f.x0)}–${fmtNumber(f.x1)}, y ${fmtNumber(f.y0)}–${fmtNumber(f.y1)} m.`;
+  const clock = $("clock-scale");
+  const scale = live.timeScale();
+  clock.hidden = scale === 1;
+  clock.textContent = `Robot clock ×${fmtNumber(scale, Number.isInteger(scale) ? 0 : 1)}`;
+  clock.title = `The robots run ${fmtNumber(scale, 1)} times faster than real time: times of robots and tasks `
+    + "(max time, a coalition's time) are on the robot clock; elapsed times and ETAs are real time.";
+}
+
+// --- the header: clouds, clock, link ---------------------------------------------------
+function drawHeader() {
+  const now = live.now();
+  const primary = live.endpoints.find((e) => e.ok);
+  $("iaas-name").textContent = primary ? `requests go to ${primary.cloud || primary.url}` : "no IaaS answers";
+  const chips = live.clouds.map((cloud) => {
+    const swatch = el("span", { class: "swatch", "aria-hidden": "true" });
+    swatch.style.background = cloud.colour;
+    const state = cloud.status === "up" ? `${fmtNumber(cloud.robots)}`
+      : cloud.status === "down" ? `down ${fmtDuration(now - cloud.since)}` : "not seen";
+    const title = cloud.status === "up"
+      ? `${cloud.name}: live, ${cloud.robots} robots (${cloud.idle} idle, ${cloud.offline} offline)${cloud.iaas ? `; IaaS ${cloud.iaas}` : ""}`
+      : `${cloud.name}: ${cloud.status} since ${fmtClock(cloud.since)}: ${cloud.reason || ""}`;
+    return el("li", { "data-cloud": cloud.name, "data-status": cloud.status, title },
+      swatch, el("span", { class: "name", text: cloud.name }), el("b", { text: state }));
+  });
+  const key = chips.map((c) => c.title + c.textContent).join("|");
+  if (key !== page.chipsKey) {
+    page.chipsKey = key;
+    $("cloud-health").replaceChildren(...chips);
+  }
+  const connection = $("connection");
+  const text = $("connection-text");
+  if (live.link === "live") {
+    const down = live.clouds.filter((c) => c.status !== "up").length;
+    connection.dataset.state = !primary ? "down" : down ? "partial" : "ok";
+    text.textContent = !primary ? "no IaaS answers" : down ? `live · ${down} cloud${down === 1 ? "" : "s"} down` : `live · ${fmtNumber(live.robots.size)} robots`;
+  } else if (live.link === "connecting") {
+    connection.dataset.state = "wait";
+    text.textContent = "connecting…";
+  } else {
+    connection.dataset.state = "down";
+    text.textContent = `server lost ${fmtDuration(live.localNow() - live.linkSince)} ago`;
+  }
+}
+
+function drawCounts() {
+  const counts = Object.fromEntries(STATUSES.map((s) => [s, 0]));
+  let stale = 0;
+  let shown = 0;
+  for (const robot of live.robots.values()) {
+    counts[STATUSES.includes(robot.status) ? robot.status : "offline"] += 1;
+    if (robot.heard !== null && robot.heard !== undefined) stale += 1;
+    if (map.matches(robot)) shown += 1;
+  }
+  for (const s of STATUSES) $(`count-${s}`).textContent = fmtNumber(counts[s]);
+  $("count-stale").textContent = fmtNumber(stale);
+  const clouds = live.clouds.length;
+  const total = live.robots.size;
+  $("forest-summary").textContent = `${fmtNumber(total)} robots of ${clouds} cloud${clouds === 1 ? "" : "s"}`
+    + (shown < total ? ` · ${fmtNumber(shown)} shown` : "") + ` · ${map.visibleArea()}`;
+}
+
+// --- alerts -----------------------------------------------------------------------
+function alertItem(alert) {
+  return el("li", { "data-level": alert.level, "data-kind": alert.kind, "data-alert": alert.id },
+    el("time", { text: fmtClock(alert.at) }), el("span", { text: alert.text }));
+}
+
+function drawAlerts() {
+  const list = $("alert-list");
+  list.replaceChildren(...[...live.alerts].reverse().map(alertItem));
+  $("alerts-empty").hidden = live.alerts.length > 0;
+}
+
+function newAlerts(alerts, local = false) {
+  if (local) live.alerts.push(...alerts);
+  drawAlerts();
+  const serious = alerts.filter((a) => a.level === "danger" || a.level === "warning" || a.level === "ok");
+  if ($("alerts-panel").hidden) page.unread += alerts.length;
+  $("alerts-count").textContent = String(page.unread);
+  $("alerts-button").dataset.unread = String(page.unread > 0);
+  const last = serious[serious.length - 1];
+  if (last) {
+    const banner = $("banner");
+    banner.hidden = false;
+    banner.dataset.level = last.level;
+    $("banner-text").textContent = `${fmtClock(last.at)} · ${last.text}`;
+    page.bannerId = last.id;
+    announce(last.text);
+  }
+}
+
+$("banner-close").addEventListener("click", () => { $("banner").hidden = true; });
+$("alerts-button").addEventListener("click", () => {
+  const panel = $("alerts-panel");
+  panel.hidden = !panel.hidden;
+  $("alerts-button").setAttribute("aria-expanded", String(!panel.hidden));
+  if (!panel.hidden) {
+    page.unread = 0;
+    $("alerts-count").textContent = "0";
+    $("alerts-button").dataset.unread = "false";
+  }
+});
+
+// --- sending ---------------------------------------------------------------------------
+function showSend(submission) {
+  const stop = $("stop-checking");
+  stop.hidden = !["unconfirmed", "not-sent-yet"].includes(submission.state);
+  const detail = sentence(humanize(submission.detail || ""));
+  switch (submission.state) {
+    case "sending":
+      form.setBusy(true, "Sending…");
+      form.setResult("Sending…", "pending");
+      break;
+    case "unconfirmed":
+      form.setBusy(true, "Checking…");
+      form.setResult(`Not confirmed yet: ${detail} The request may have reached the IaaS; checking again with the same key `
+        + `in ${submission.retryIn} s (try ${submission.attempts + 1}), so it cannot be sent twice.`, "pending");
+      break;
+    case "not-sent-yet":
+      form.setBusy(true, "Trying…");
+      form.setResult(`No IaaS has received it yet: ${detail} Trying again in ${submission.retryIn} s (try ${submission.attempts + 1}).`, "pending");
+      break;
+    case "confirmed": {
+      form.setBusy(false);
+      const request = submission.request;
+      form.setResult(`Sent ${request.id}${request.label ? ` (“${request.label}”)` : ""}: ${request.state}.`, "ok");
+      announce(`Request ${request.id} sent.`);
+      live.requests.set(request.id, { ...(live.requests.get(request.id) || {}), id: request.id, state: request.state });
+      reloadRequests(0);
+      select(request.id);
+      showTab("state");
+      break;
     }
-    previous = entry;
+    case "refused":
+      form.setBusy(false);
+      if (submission.status === 422) {
+        form.showServerError(submission.detail);
+        form.setResult("The request was refused: see the field marked in red. Nothing was sent to the robots.", "error");
+      } else {
+        form.showErrors({ form: detail });
+        form.setResult("The request was refused. Nothing was sent to the robots.", "error");
+      }
+      break;
+    case "stopped":
+      form.setBusy(false);
+      form.setResult(submission.maybeDelivered
+        ? "Stopped checking. The request may have reached the IaaS: if it did, it will show in Requests."
+        : "Stopped. No IaaS received the request, so nothing was sent; you can send it again.", "pending");
+      break;
+    default:
+      break;
   }
-  for (const [id, entry] of state.items) {
-    if (!seen.has(id)) { entry.li.remove(); state.items.delete(id); }
-  }
-  $("requests-empty").hidden = items.length > 0;
-  $("requests-count").textContent = items.length ? `${items.length} shown, newest first` : "";
-  if (!state.autoSelected && items.length && !state.selectedId) {
-    state.autoSelected = true;
-    await select(items[0].id);
+}
+$("stop-checking").addEventListener("click", () => sender.stop());
+
+// The send's line follows its request: a rejection is not left green.
+function followSent(summary) {
+  const submission = sender.current;
+  if (!submission || submission.state !== "confirmed" || submission.request.id !== summary.id) return;
+  const name = summary.label ? `${summary.id} (“${summary.label}”)` : summary.id;
+  if (summary.state === "rejected" || summary.state === "failed") {
+    form.setResult(`${name} was ${summary.state}: ${sentence(humanize(summary.reason || "no reason given"))}`, "error");
+  } else if (summary.state === "canceled") {
+    form.setResult(`${name} was canceled.`, "pending");
+  } else {
+    form.setResult(`Sent ${name}: ${summary.state}.`, "ok");
   }
 }
 
-function listEntry(request) {
-  const badge = el("span", { class: "badge" });
-  const title = el("span", { class: "title" });
-  const meta = el("span", { class: "meta" });
-  const when = el("time", { class: "when" });
-  const button = el("button", { type: "button", "data-request": request.id },
-    badge, el("span", { class: "what" }, title, meta), when);
-  button.addEventListener("click", () => select(request.id));
-  const li = el("li", { "data-request": request.id }, button);
-  return { li, button, badge, title, meta, when };
+// --- requests ---------------------------------------------------------------------------
+function followRequests(summaries) {
+  let fresh = false;
+  for (const summary of summaries) {
+    if (!requestsTable.update(summary)) fresh = true;
+    followSent(summary);
+    if (summary.id === page.selectedId && summary.rev !== page.selectedRev) refreshSelected();
+  }
+  const q = page.requestsQuery;
+  if (fresh && q.index === 0) reloadRequests(300);
+  else if (summaries.length) requestsTable.render();
 }
 
-function updateEntry(entry, request) {
-  entry.badge.textContent = request.state;
-  entry.badge.dataset.state = request.state;
-  entry.li.dataset.state = request.state;
-  entry.title.textContent = request.label || request.id;
-  entry.meta.textContent = `${request.label ? `${request.id} · ` : ""}${taskSummary(request.task)}`;
-  entry.when.textContent = fmtClock(request.created_at);
-  entry.when.setAttribute("datetime", request.created_at);
-  entry.button.setAttribute("aria-label", `${request.label || request.id}, ${request.state}, sent ${fmtClock(request.created_at)}`);
-  entry.button.setAttribute("aria-current", String(request.id === state.selectedId));
+function reloadRequests(delay = 0) {
+  clearTimeout(page.reloadTimer);
+  page.reloadTimer = setTimeout(loadRequests, delay);
 }
 
-// --- REQUEST STATE -----------------------------------------------------------
+async function loadRequests() {
+  const q = page.requestsQuery;
+  const answer = await api.requests({ state: q.state, limit: REQUESTS_PER_PAGE, before: q.cursors[q.index] });
+  if (!answer.ok) {
+    $("requests-error").textContent = sentence(answer.detail);
+    return;
+  }
+  $("requests-error").textContent = (answer.data.missing || []).map(sentence).join(" ");
+  const items = answer.data.items.map((item) => ({ ...item, ...(live.requests.get(item.id)?.rev === item.rev ? live.requests.get(item.id) : {}) }));
+  requestsTable.setItems(items);
+  q.next = answer.data.next;
+  $("requests-newer").disabled = q.index === 0;
+  $("requests-older").disabled = !q.next;
+  $("requests-page").textContent = `page ${q.index + 1}`;
+  const from = q.index * REQUESTS_PER_PAGE;
+  $("requests-count").textContent = items.length
+    ? `${fmtNumber(from + 1)}–${fmtNumber(from + items.length)}${q.state ? ` ${q.state}` : ""}, newest first` : "";
+  $("requests-empty").hidden = items.length > 0 || q.index > 0;
+  $("requests-empty").textContent = q.state ? `No ${q.state} requests.` : "No requests yet: place the fire and send one.";
+  if (!page.selectedId && !page.autoSelected && items.length) {
+    page.autoSelected = true;
+    select(items[0].id);
+  }
+}
+
+for (const s of REQUEST_STATES) $("requests-state").append(el("option", { value: s, text: s }));
+$("requests-state").addEventListener("change", () => {
+  page.requestsQuery = { state: $("requests-state").value, cursors: [""], index: 0, next: null };
+  loadRequests();
+});
+$("requests-older").addEventListener("click", () => {
+  const q = page.requestsQuery;
+  if (!q.next) return;
+  q.cursors[q.index + 1] = q.next;
+  q.index += 1;
+  loadRequests();
+});
+$("requests-newer").addEventListener("click", () => {
+  const q = page.requestsQuery;
+  if (q.index === 0) return;
+  q.index -= 1;
+  loadRequests();
+});
+
+// --- REQUEST STATE ------------------------------------------------------------------------
 async function select(id) {
-  state.selectedId = id;
-  state.selectedKey = "";
+  page.autoSelected = true;
+  page.selectedId = id;
+  page.selectedRev = null;
   $("lookup-id").value = id;
   $("err-lookup").textContent = "";
   $("lookup-id").removeAttribute("aria-invalid");
   $("cancel-result").textContent = "";
-  for (const entry of state.items.values()) {
-    entry.button.setAttribute("aria-current", String(entry.button.dataset.request === id));
-  }
+  requestsTable.selectedId = id;
+  requestsTable.render();
   await refreshSelected();
 }
 
 async function refreshSelected() {
-  const id = state.selectedId;
+  const id = page.selectedId;
   if (!id) return;
   const answer = await api.request(id);
-  if (id !== state.selectedId) return;
+  if (id !== page.selectedId) return;
   if (!answer.ok) {
     $("err-lookup").textContent = sentence(answer.detail);
     return;
@@ -212,97 +384,22 @@ async function refreshSelected() {
 }
 
 function showRequest(request) {
-  const key = JSON.stringify(request);
-  if (key === state.selectedKey) return;
-  const before = state.selected;
+  const before = page.selected;
   if (before && before.id === request.id && before.state !== request.state) {
     announce(`Request ${request.id} is ${request.state}.`);
   }
-  state.selected = request;
-  state.selectedKey = key;
-  const cancel = $("cancel");
-  cancel.disabled = FINAL_STATES.has(request.state);
+  page.selected = request;
+  page.selectedRev = `${request.updated_at}/${(request.history || []).length}`;
+  const summary = live.requests.get(request.id);
+  if (summary && summary.rev !== page.selectedRev && summary.updated_at < request.updated_at) live.requests.set(request.id, { ...summary, state: request.state });
+  $("cancel").disabled = FINAL_STATES.has(request.state);
   map.select(request);
-  $("state-body").replaceChildren(...stateView(request));
-  const entry = state.items.get(request.id);
-  if (entry) updateEntry(entry, request);
+  statePanel.show(request);
 }
 
-function stateView(request) {
-  const parts = [];
-  parts.push(el("div", { class: "state-head", id: "state-head", "data-request": request.id, "data-state": request.state },
-    el("span", { class: "badge", "data-state": request.state, id: "state-badge", text: request.state }),
-    el("span", { class: "rid", text: request.id }),
-    request.label ? el("span", { class: "label", text: request.label }) : null));
-  const task = request.task || {};
-  parts.push(el("p", { class: "muted task-line",
-    text: `Fire at ${fmtPoint(task.location)} · ${taskSummary(task).split(" · ")[1] || ""} · at most `
-      + `${fmtNumber(task.max_robots)} robots, ${fmtNumber(task.max_cost)} cost, ${fmtDuration(task.max_time)}`
-      + ` · battery ≥ ${fmtNumber(task.min_battery)}% · ${PRIORITY[task.priority] || task.priority} · ${task.execution}` }));
-  if (request.reason) parts.push(el("p", { class: "reason", id: "state-reason", text: sentence(request.reason) }));
-
-  const coalition = request.coalition || [];
-  parts.push(el("div", { class: "stats" },
-    stat("Time", request.time === null ? "–" : fmtShortDuration(request.time)),
-    stat("Cost", request.cost === null ? "–" : fmtNumber(request.cost, 2)),
-    stat("Robots", coalition.length ? fmtNumber(coalition.length) : "–"),
-    stat("Selection", request.optimizer ? `${request.optimizer}${request.selection_ms !== null ? ` · ${fmtNumber(request.selection_ms, 1)} ms` : ""}` : "–")));
-
-  const front = request.pareto || [];
-  const frontBox = el("div", { class: "front", id: "front" },
-    el("h3", { class: "subhead" }, el("span", { text: "Pareto front" }),
-      el("span", { class: "hint", text: front.length ? `${front.length} coalition${front.length === 1 ? "" : "s"} · marker size = robots` : "" })));
-  if (front.length) frontBox.append(drawFront(request));
-  else frontBox.append(el("p", { class: "muted", text: emptyFront(request.state) }));
-  parts.push(frontBox);
-
-  if (coalition.length) {
-    const rows = coalition.map((a) => {
-      const swatch = el("span", { class: "swatch", "aria-hidden": "true" });
-      swatch.style.background = cloudColour(a.cloud);
-      const phase = a.progress?.phase || "pending";
-      const value = Math.max(0, Math.min(1, a.progress?.progress ?? 0));
-      const fill = el("div", { class: "fill" });
-      fill.style.width = `${(value * 100).toFixed(1)}%`;
-      return el("tr", { "data-robot": a.robot },
-        el("td", {}, el("span", { class: "robot-id" }, swatch, a.robot), el("span", { class: "cloud", text: a.cloud })),
-        el("td", { text: a.capabilities.join(", ") }),
-        el("td", { class: "num", text: fmtShortDuration(a.time) }),
-        el("td", { class: "num", text: fmtNumber(a.cost, 2) }),
-        el("td", {}, el("div", { class: "progress", "data-phase": phase, role: "progressbar",
-          "aria-valuemin": 0, "aria-valuemax": 100, "aria-valuenow": Math.round(value * 100), "aria-label": `${a.robot} ${phase}` },
-        el("div", { class: "track" }, fill), el("span", { class: "phase", text: phase }))));
-    });
-    parts.push(el("div", { class: "coalition-box" },
-      el("h3", { class: "subhead" }, el("span", { text: "Coalition" }), el("span", { class: "hint", text: "highlighted on the map" })),
-      el("div", { class: "table-scroll" }, el("table", { class: "coalition", id: "coalition" },
-        el("thead", {}, el("tr", {}, el("th", { text: "Robot" }), el("th", { text: "Capabilities" }),
-          el("th", { class: "num", text: "Time" }), el("th", { class: "num", text: "Cost" }), el("th", { text: "Progress" }))),
-        el("tbody", {}, ...rows)))));
-  }
-
-  parts.push(el("div", { class: "history-box" },
-    el("h3", { class: "subhead", text: "History" }),
-    el("ol", { class: "history", id: "history" }, ...(request.history || []).map((h) => el("li", { "data-state": h.state, "data-kind": h.kind },
-      el("time", { datetime: h.at, text: fmtClock(h.at) }),
-      h.kind === "state" ? el("span", { class: "badge", "data-state": h.state, text: h.state }) : el("span", { class: "event", text: "event" }),
-      el("span", { class: "detail", text: h.detail || "" }))))));
-  return parts;
-}
-
-function stat(name, value) {
-  return el("div", { class: "stat" }, el("div", { class: "k", text: name }), el("div", { class: "v", text: value }));
-}
-
-function emptyFront(requestState) {
-  if (requestState === "received" || requestState === "selecting") return "Selecting a coalition…";
-  if (requestState === "rejected") return "No feasible coalition: nothing to plot.";
-  return "No front was computed for this request.";
-}
-
-// --- the thesis's other two buttons --------------------------------------------
 $("lookup-form").addEventListener("submit", async (event) => {
   event.preventDefault();
+  page.autoSelected = true;  // the operator chose: the first list must not select over it
   const input = $("lookup-id");
   const id = input.value.trim();
   if (!id) {
@@ -320,9 +417,25 @@ $("lookup-form").addEventListener("submit", async (event) => {
   await select(id);
 });
 
-$("cancel").addEventListener("click", async () => {
-  const id = state.selectedId;
-  if (!id) return;
+// Cancel asks first, naming the request.
+$("cancel").addEventListener("click", () => {
+  const request = page.selected;
+  if (!request) return;
+  $("cancel-dialog-title").textContent = `Cancel ${request.label ? `“${request.label}”` : request.id}?`;
+  $("cancel-dialog-text").textContent = `${requestName(request)} is ${request.state}. Cancelling stops every robot `
+    + "of its coalition and releases them; it cannot be undone.";
+  $("cancel-dialog").dataset.request = request.id;
+  $("cancel-dialog").showModal();
+});
+
+$("cancel-dialog").addEventListener("close", async () => {
+  const dialog = $("cancel-dialog");
+  const id = dialog.dataset.request;
+  if (dialog.returnValue !== "cancel" || !id) {
+    $("cancel").focus();
+    return;
+  }
+  dialog.returnValue = "";
   const result = $("cancel-result");
   const button = $("cancel");
   button.disabled = true;
@@ -330,28 +443,133 @@ $("cancel").addEventListener("click", async () => {
   if (answer.ok) {
     result.textContent = `${id} is ${answer.data.state}.`;
     result.dataset.kind = "ok";
-    state.selectedKey = "";
-    showRequest(answer.data);
-    await refreshList();
+    if (id === page.selectedId) showRequest(answer.data);
+    reloadRequests(0);
   } else {
     result.textContent = sentence(answer.detail);
     result.dataset.kind = "error";
-    button.disabled = Boolean(state.selected && FINAL_STATES.has(state.selected.state));
+    button.disabled = Boolean(page.selected && FINAL_STATES.has(page.selected.state));
   }
   announce(result.textContent);
 });
 
-// --- the refresh loop ----------------------------------------------------------
-async function tick() {
-  try {
-    const capabilities = state.tick % CAPABILITIES_EVERY === 0 ? refreshCapabilities() : null;
-    await Promise.all([refreshRobots(), refreshList(), capabilities]);
-    await refreshSelected();
-  } finally {
-    state.tick += 1;
-    setTimeout(tick, REFRESH_MS);
-  }
+// --- the map's tools ------------------------------------------------------------------------
+function fillCapabilityFilter() {
+  const select = $("filter-capability");
+  const names = live.capabilities.map((c) => c.name).sort();
+  const have = [...select.options].slice(1).map((o) => o.value);
+  if (names.join() === have.join()) return;
+  const value = select.value;
+  select.replaceChildren(el("option", { value: "", text: "all" }), ...names.map((n) => el("option", { value: n, text: n })));
+  select.value = names.includes(value) ? value : "";
 }
 
-refreshHealth();
-tick();
+function fillCloudFilter() {
+  const select = $("filter-cloud");
+  const names = live.clouds.map((c) => c.name);
+  const have = [...select.options].slice(1).map((o) => o.value);
+  if (names.join() === have.join()) return;
+  const value = select.value;
+  select.replaceChildren(el("option", { value: "", text: "all" }), ...names.map((n) => el("option", { value: n, text: n })));
+  select.value = names.includes(value) ? value : "";
+}
+
+function applyFilters() {
+  const filter = { cloud: $("filter-cloud").value, status: $("filter-status").value, capability: $("filter-capability").value };
+  map.setFilter(filter);
+  robotsTable.setFilter((robot) => map.matches(robot), $("robots-search").value);
+  drawCounts();
+}
+for (const id of ["filter-cloud", "filter-status", "filter-capability"]) $(id).addEventListener("change", applyFilters);
+$("robots-search").addEventListener("input", applyFilters);
+$("robots-previous").addEventListener("click", () => robotsTable.turn(-1));
+$("robots-next").addEventListener("click", () => robotsTable.turn(1));
+
+function showZoom() {
+  $("zoom-level").textContent = `×${fmtNumber(map.view.k, map.view.k < 10 ? 1 : 0)}`;
+  drawCounts();
+}
+new MutationObserver(showZoom).observe($("map"), { attributes: true, attributeFilter: ["data-zoom"] });
+$("zoom-in").addEventListener("click", () => map.zoomBy(1.5));
+$("zoom-out").addEventListener("click", () => map.zoomBy(1 / 1.5));
+$("zoom-reset").addEventListener("click", () => map.reset());
+
+// A robot's details, on a tap or a click (hover shows them too, as a tooltip).
+function showRobotCard(id, move = true) {
+  const card = $("robot-card");
+  const robot = id && live.robots.get(id);
+  if (!robot) {
+    card.hidden = true;
+    page.cardRobot = null;
+    return;
+  }
+  page.cardRobot = id;
+  const assignment = live.assignments().get(id);
+  const age = live.age(robot);
+  const rows = [
+    ["Cloud", robot.cloud], ["Status", robot.status], ["Battery", `${fmtNumber(robot.battery)}%`],
+    ["Capabilities", (robot.capabilities || []).join(", ") || "–"],
+    ["Request", assignment ? requestName(assignment.request) : robot.request || "–"],
+    ["Task", robot.phase ? `${robot.phase}${Number.isFinite(robot.progress) ? ` · ${Math.round(robot.progress * 100)}%` : ""}` : "–"],
+    ["ETA", assignment ? fmtDuration(live.robotEta(robot, assignment.time)) : "–"],
+    ["Position", `(${fmtNumber(robot.x)}, ${fmtNumber(robot.y)}) m`],
+    ["Last heard", age === null ? "live" : `${fmtAge(age)} (stale)`],
+  ];
+  $("robot-card-title").textContent = robot.id;
+  $("robot-card-body").replaceChildren(...rows.flatMap(([k, v]) => [el("dt", { text: k }), el("dd", { text: v })]));
+  card.dataset.robot = id;
+  card.classList.toggle("stale", age !== null);
+  card.hidden = false;
+  if (move) {
+    const point = map.clientPoint(id);
+    const wrap = $("map-wrap").getBoundingClientRect();
+    if (point) {
+      const left = Math.min(Math.max(4, point.x - wrap.left + 14), wrap.width - card.offsetWidth - 4);
+      const top = Math.min(Math.max(4, point.y - wrap.top + 14), wrap.height - card.offsetHeight - 4);
+      card.style.left = `${left}px`;
+      card.style.top = `${top}px`;
+    }
+  }
+}
+$("robot-card-close").addEventListener("click", () => showRobotCard(null));
+
+// --- tabs: the tables' (Requests, Robots) and, on a phone, the page's ----------------------
+function showTableTab(name) {
+  page.tableTab = name;
+  for (const tab of ["requests", "robots"]) {
+    const on = tab === name;
+    $(`tab-${tab}`).setAttribute("aria-selected", String(on));
+    $(`tab-${tab}`).tabIndex = on ? 0 : -1;
+    $(`${tab}-view`).hidden = !on;
+  }
+  robotsTable.visible = name === "robots";
+  robotsTable.render();
+}
+$("tab-requests").addEventListener("click", () => showTableTab("requests"));
+$("tab-robots").addEventListener("click", () => showTableTab("robots"));
+$("tab-requests").addEventListener("keydown", (e) => { if (e.key === "ArrowRight") { showTableTab("robots"); $("tab-robots").focus(); } });
+$("tab-robots").addEventListener("keydown", (e) => { if (e.key === "ArrowLeft") { showTableTab("requests"); $("tab-requests").focus(); } });
+
+function showTab(name) {
+  page.tab = name;
+  document.body.dataset.tab = name;
+  for (const button of $("tabs").querySelectorAll("button")) {
+    if (button.dataset.tab === name) button.setAttribute("aria-current", "page");
+    else button.removeAttribute("aria-current");
+  }
+}
+for (const button of $("tabs").querySelectorAll("button")) {
+  button.addEventListener("click", () => showTab(button.dataset.tab));
+}
+
+// --- every second: clocks and ages ----------------------------------------------------------
+setInterval(() => {
+  fillCloudFilter();
+  drawHeader();
+  statePanel.tick();
+  if (page.tableTab === "requests") requestsTable.render();
+  if (live.link !== "live") document.body.dataset.staleFor = fmtDuration(live.localNow() - live.linkSince);
+}, 1000);
+
+live.start();
+loadRequests();

@@ -1,17 +1,34 @@
 // "Send a Request": the task form. Every field is checked here as MODEL.md
-// asks, and the error is shown beside its field; the IaaS's own sentence
-// (422) is placed beside the field it names.
+// asks (and the fire must be in the application's forest), and the error is
+// shown beside its field; the IaaS's own sentence (422) is placed beside the
+// field it names, in the form's words.
 
-import { el, fmtNumber } from "./util.js";
+import { el, fmtDuration, fmtNumber, humanize, sentence } from "./util.js";
 
 const MAX_COUNT = 10000;
 const MAX_ROBOTS = 100000;
 const FIELDS = ["location", "capabilities", "max_robots", "max_cost", "max_time", "min_battery", "label", "form"];
 
-function sentence(text) {
-  const trimmed = String(text).trim();
-  const capital = trimmed.charAt(0).toUpperCase() + trimmed.slice(1);
-  return /[.!?]$/.test(capital) ? capital : `${capital}.`;
+// What each priority does to the choice (MODEL.md: the ranking's and the
+// final choice's weights both follow it).
+const PRIORITY_TEXT = {
+  balanced: "Balanced: robots are ranked with time and cost weighing the same; the coalition is chosen "
+    + "among the Pareto-optimal ones with time, cost and size weighing a third each.",
+  time: "Time critical: robots are ranked with time weighing 0.75 and cost 0.25; the choice among the "
+    + "Pareto-optimal coalitions favours the quickest (time 0.6, cost 0.2, size 0.2), even if it costs more.",
+  cost: "Cost critical: robots are ranked with cost weighing 0.75 and time 0.25; the choice among the "
+    + "Pareto-optimal coalitions favours the cheapest (cost 0.6, time 0.2, size 0.2), even if it takes longer.",
+};
+
+function metres(value) {
+  return fmtNumber(value, Number.isInteger(value) ? 0 : 1);
+}
+
+// The server's sentence refusing a fire outside the forest (config.py Forest.refusal).
+export function forestRefusal(forest, x, y) {
+  if (!forest || (x >= forest.x0 && x <= forest.x1 && y >= forest.y0 && y <= forest.y1)) return null;
+  return `The fire at (${metres(x)}, ${metres(y)}) is outside the forest, which spans x from `
+    + `${metres(forest.x0)} to ${metres(forest.x1)} m and y from ${metres(forest.y0)} to ${metres(forest.y1)} m.`;
 }
 
 function readNumber(input) {
@@ -40,7 +57,15 @@ export class RequestForm {
     this.defaulted = false;
     this.button = form.querySelector("#send");
     this.result = form.querySelector("#send-result");
+    this.forest = null;
+    this.timeScale = 1;
+    this.busy = false;
     form.addEventListener("submit", (event) => { event.preventDefault(); this.submit(); });
+    for (const radio of form.querySelectorAll("input[name=priority]")) {
+      radio.addEventListener("change", () => this.explainPriority());
+    }
+    this.inputs.max_time.addEventListener("input", () => this.explainTime());
+    this.explainPriority();
     for (const name of ["x", "y"]) {
       this.inputs[name].addEventListener("input", () => {
         const x = Number(this.inputs.x.value);
@@ -51,6 +76,30 @@ export class RequestForm {
     }
     // A field's error goes as soon as the field is changed.
     form.addEventListener("input", (event) => this.clearFor(event.target));
+  }
+
+  setForest(forest) {
+    this.forest = forest;
+  }
+
+  setUnits(currency, timeScale) {
+    this.timeScale = timeScale;
+    this.form.querySelector("#cost-unit").textContent = currency;
+    this.form.querySelector("#time-unit").textContent = timeScale === 1 ? "s" : "robot s";
+    this.explainTime();
+  }
+
+  explainPriority() {
+    const priority = this.form.querySelector("input[name=priority]:checked")?.value || "balanced";
+    this.form.querySelector("#priority-help").textContent = PRIORITY_TEXT[priority];
+  }
+
+  // Max time is robot time: say what it is in real time.
+  explainTime() {
+    const help = this.form.querySelector("#max-time-help");
+    const value = Number(this.inputs.max_time.value);
+    if (this.timeScale === 1 || !(value > 0)) { help.textContent = ""; return; }
+    help.textContent = `= ${fmtDuration(value / this.timeScale)} real time`;
   }
 
   setLocation([x, y]) {
@@ -113,6 +162,7 @@ export class RequestForm {
     if (x.empty && y.empty) errors.location = "Place the fire: click the map, or type x and y.";
     else if (!Number.isFinite(x.value)) errors.location = "x must be a number of metres.";
     else if (!Number.isFinite(y.value)) errors.location = "y must be a number of metres.";
+    else if (forestRefusal(this.forest, x.value, y.value)) errors.location = forestRefusal(this.forest, x.value, y.value);
 
     const sensing = {};
     const actuating = {};
@@ -175,13 +225,15 @@ export class RequestForm {
       this.setResult("Check the fields marked in red.", "error");
       return;
     }
-    this.button.disabled = true;
-    this.setResult("Sending…", null);
-    try {
-      await this.onSubmit(task);
-    } finally {
-      this.button.disabled = false;
-    }
+    await this.onSubmit(task);
+  }
+
+  // While a send is not settled the button stays off: pressing it again
+  // would be a second request.
+  setBusy(busy, text = "Send a Request") {
+    this.busy = busy;
+    this.button.disabled = busy;
+    this.button.textContent = text;
   }
 
   // --- errors beside the fields -----------------------------------------
@@ -214,16 +266,19 @@ export class RequestForm {
   }
 
   // The IaaS names the field first ("max_cost: input should be ..."; "location is missing").
+  // Beside its field, the sentence loses the name and speaks the form's words.
   showServerError(detail) {
-    const match = /^(location|sensing|actuating|max_robots|max_cost|max_time|min_battery|priority|execution|label|input)(?:\.([^\s:[]+))?(?:\[\d+\])?(?::| is )/.exec(detail);
+    const match = /^(location|sensing|actuating|max_robots|max_cost|max_time|min_battery|priority|execution|label|input)(?:\.([^\s:[]+))?(?:\[\d+\])?(:| is )/.exec(detail);
     let field = "form";
+    let text = detail;
     if (match) {
-      const [, name, sub] = match;
+      const [whole, name, sub, sep] = match;
       if ((name === "sensing" || name === "actuating") && sub && this.caps.has(sub)) field = `cap:${sub}`;
       else if (name === "sensing" || name === "actuating" || (name === "input" && /capabilit/.test(detail))) field = "capabilities";
       else if (FIELDS.includes(name)) field = name;
+      if (field !== "form" && sep === ":") text = detail.slice(whole.length);
     }
-    this.showErrors({ [field]: sentence(detail) });
+    this.showErrors({ [field]: sentence(humanize(text)) });
   }
 
   clearError(field) {
@@ -250,5 +305,7 @@ export class RequestForm {
   setResult(text, kind) {
     this.result.textContent = text;
     if (kind) this.result.dataset.kind = kind; else delete this.result.dataset.kind;
+    // The form may be taller than its panel: what happened to a send is kept in sight.
+    if (text) this.result.scrollIntoView({ block: "nearest" });
   }
 }

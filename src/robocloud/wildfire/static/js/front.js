@@ -1,5 +1,7 @@
 // The Pareto front of a request: time against cost, the number of robots as
-// the marker's size, the chosen coalition marked. Inline SVG.
+// the marker's size, the chosen coalition marked. After a robot is replaced,
+// the coalition now at work is marked too ("now"), where its time and cost are.
+// Inline SVG.
 
 import { fmtNumber, svg, ticks } from "./util.js";
 
@@ -25,24 +27,46 @@ function near(a, b) {
   return Math.abs(a - b) <= Math.max(1e-6, 1e-9 * Math.max(Math.abs(a), Math.abs(b)));
 }
 
+function sameRobots(a, b) {
+  const x = [...a].sort();
+  const y = [...b].sort();
+  return x.length === y.length && x.every((r, i) => r === y[i]);
+}
+
+// The member chosen at selection: the one the history's dispatch named (a
+// replacement changes the coalition, not what was chosen), else the coalition
+// itself, else the one at the request's time and cost.
 export function isChosen(member, request) {
-  const chosen = (request.coalition || []).map((a) => a.robot).sort();
-  if (chosen.length) {
-    const robots = [...member.robots].sort();
-    return robots.length === chosen.length && robots.every((r, i) => r === chosen[i]);
-  }
+  const dispatched = (request.history || []).find((h) => h.kind === "state" && h.state === "dispatched");
+  const named = dispatched && /robots?: (.+)$/.exec(dispatched.detail || "");
+  if (named) return sameRobots(member.robots, named[1].split(",").map((r) => r.trim()));
+  const coalition = (request.coalition || []).map((a) => a.robot);
+  if (coalition.length) return sameRobots(member.robots, coalition);
   return request.time !== null && request.cost !== null
     && near(member.time, request.time) && near(member.cost, request.cost);
 }
 
-export function drawFront(request) {
+export function drawFront(request, { currency = "" } = {}) {
   const front = request.pareto || [];
+  const coalition = (request.coalition || []).map((a) => a.robot);
+  // The coalition at work, when a replacement made it another than the chosen one:
+  // on the front if it is a member, else where the request's time and cost put it.
+  const chosenMember = front.find((m) => isChosen(m, request));
+  let current = null;
+  if (coalition.length && !(chosenMember && sameRobots(chosenMember.robots, coalition))) {
+    const member = front.find((m) => sameRobots(m.robots, coalition));
+    if (member) current = member;
+    else if (Number.isFinite(request.time) && Number.isFinite(request.cost)) {
+      current = { time: request.time, cost: request.cost, size: coalition.length };
+    }
+  }
   const plot = svg("svg", {
     viewBox: `0 0 ${W} ${H}`, role: "img", class: "front-plot",
     "aria-label": `Pareto front: ${front.length} coalition${front.length === 1 ? "" : "s"}, time against cost`,
   });
-  const [t0, t1] = domain(front.map((m) => m.time));
-  const [c0, c1] = domain(front.map((m) => m.cost));
+  const points = current && !front.includes(current) ? [...front, current] : front;
+  const [t0, t1] = domain(points.map((m) => m.time));
+  const [c0, c1] = domain(points.map((m) => m.cost));
   const x = (t) => M.left + ((t - t0) / (t1 - t0)) * (W - M.left - M.right);
   const y = (c) => H - M.bottom - ((c - c0) / (c1 - c0)) * (H - M.top - M.bottom);
 
@@ -57,13 +81,13 @@ export function drawFront(request) {
     axis.append(svg("text", { x: M.left - 5, y: y(c) + 3.5, "text-anchor": "end", text: fmtNumber(c, costDigits) }));
   }
   axis.append(svg("path", { d: `M${M.left} ${M.top} V${H - M.bottom} H${W - M.right}`, fill: "none" }));
-  axis.append(svg("text", { class: "axis-title", x: (M.left + W - M.right) / 2, y: H - 4, "text-anchor": "middle", text: "time (s)" }));
+  axis.append(svg("text", { class: "axis-title", x: (M.left + W - M.right) / 2, y: H - 4, "text-anchor": "middle", text: "time (robot seconds)" }));
   axis.append(svg("text", { class: "axis-title", x: 11, y: (M.top + H - M.bottom) / 2, "text-anchor": "middle",
-    transform: `rotate(-90 11 ${(M.top + H - M.bottom) / 2})`, text: "cost" }));
+    transform: `rotate(-90 11 ${(M.top + H - M.bottom) / 2})`, text: currency ? `cost (${currency})` : "cost" }));
   plot.append(axis);
 
   // The biggest first, so a small coalition is never hidden under a big one.
-  const members = [...front].sort((a, b) => b.size - a.size);
+  const members = [...front].filter((m) => m !== current).sort((a, b) => b.size - a.size);
   let chosenPoint = null;
   for (const member of members) {
     const chosen = isChosen(member, request);
@@ -71,7 +95,7 @@ export function drawFront(request) {
       class: chosen ? "point chosen" : "point", cx: x(member.time).toFixed(1), cy: y(member.cost).toFixed(1),
       r: radiusFor(member.size), "data-size": member.size, "data-time": member.time, "data-cost": member.cost,
     }, svg("title", { text: `${member.size} robot${member.size === 1 ? "" : "s"} (${member.robots.join(", ")}): `
-      + `time ${fmtNumber(member.time)} s, cost ${fmtNumber(member.cost, 2)}${chosen ? ", chosen" : ""}` }));
+      + `time ${fmtNumber(member.time)} robot s, cost ${fmtNumber(member.cost, 2)} ${currency}${chosen ? ", chosen" : ""}` }));
     plot.append(point);
     if (chosen) chosenPoint = { member, cx: x(member.time), cy: y(member.cost) };
   }
@@ -82,6 +106,16 @@ export function drawFront(request) {
     const right = cx < W - 90;
     plot.append(svg("text", { class: "chosen-label", x: right ? cx + r + 4 : cx - r - 4, y: cy + 4,
       "text-anchor": right ? "start" : "end", text: "chosen" }));
+  }
+  if (current) {
+    const cx = x(current.time);
+    const cy = y(current.cost);
+    plot.append(svg("rect", { class: "point current", x: cx - 6, y: cy - 6, width: 12, height: 12,
+      "data-time": current.time, "data-cost": current.cost, "data-size": current.size },
+    svg("title", { text: `now, after a replacement: ${current.size} robots, time ${fmtNumber(current.time)} robot s, cost ${fmtNumber(current.cost, 2)} ${currency}` })));
+    const right = cx < W - 90;
+    plot.append(svg("text", { class: "current-label", x: right ? cx + 10 : cx - 10, y: cy - 8,
+      "text-anchor": right ? "start" : "end", text: "now" }));
   }
   return plot;
 }

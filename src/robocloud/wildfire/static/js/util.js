@@ -25,32 +25,35 @@ function setAttrs(node, attrs) {
   }
 }
 
+export const $ = (id) => document.getElementById(id);
+
 export function fmtNumber(value, digits = 0) {
   if (value === null || value === undefined || !Number.isFinite(value)) return "–";
   return value.toLocaleString("en-US", { minimumFractionDigits: digits, maximumFractionDigits: digits });
 }
 
+// The page's one duration format: "42 s", "4 min 05 s", "2 h 05 min".
+// The server's alerts use the same (live.py fmt_duration).
 export function fmtDuration(seconds) {
   if (seconds === null || seconds === undefined || !Number.isFinite(seconds)) return "–";
-  if (seconds < 60) return `${fmtNumber(seconds, seconds < 10 ? 1 : 0)} s`;
-  const minutes = Math.floor(seconds / 60);
-  const rest = Math.round(seconds - minutes * 60);
-  if (minutes < 60) return rest ? `${minutes} min ${rest} s` : `${minutes} min`;
-  const hours = Math.floor(minutes / 60);
-  return `${hours} h ${minutes % 60} min`;
+  if (seconds < 1) return "under 1 s";
+  if (seconds < 60) return `${Math.round(seconds)} s`;
+  if (seconds < 3600) {
+    const whole = Math.round(seconds);
+    return `${Math.floor(whole / 60)} min ${String(whole % 60).padStart(2, "0")} s`;
+  }
+  const minutes = Math.round(seconds / 60);
+  return `${Math.floor(minutes / 60)} h ${String(minutes % 60).padStart(2, "0")} min`;
 }
 
-// "4m 30s": for the small stat boxes.
-export function fmtShortDuration(seconds) {
-  if (seconds === null || seconds === undefined || !Number.isFinite(seconds)) return "–";
-  if (seconds < 60) return `${fmtNumber(seconds, seconds < 10 ? 1 : 0)}s`;
-  const minutes = Math.floor(seconds / 60);
-  if (minutes < 60) return `${minutes}m ${String(Math.round(seconds - minutes * 60)).padStart(2, "0")}s`;
-  return `${Math.floor(minutes / 60)}h ${String(minutes % 60).padStart(2, "0")}m`;
+// The same, for an age: "12 s ago".
+export function fmtAge(seconds) {
+  if (!Number.isFinite(seconds)) return "–";
+  return seconds < 1 ? "just now" : `${fmtDuration(seconds)} ago`;
 }
 
-export function fmtClock(iso) {
-  const date = new Date(iso);
+export function fmtClock(when) {
+  const date = typeof when === "number" ? new Date(when * 1000) : new Date(when);
   if (Number.isNaN(date.getTime())) return "";
   return date.toLocaleTimeString("en-GB", { hour12: false });
 }
@@ -58,6 +61,12 @@ export function fmtClock(iso) {
 export function fmtPoint(point) {
   if (!Array.isArray(point) || point.length !== 2) return "";
   return `(${fmtNumber(point[0])}, ${fmtNumber(point[1])})`;
+}
+
+// Seconds since the epoch of an ISO time from an IaaS.
+export function epoch(iso) {
+  const t = Date.parse(iso);
+  return Number.isNaN(t) ? NaN : t / 1000;
 }
 
 // "Nice" axis ticks: about `count` round numbers covering [lo, hi].
@@ -71,20 +80,36 @@ export function ticks(lo, hi, count = 5) {
   return out;
 }
 
-// Colour-blind-safe colours (Okabe-Ito and Tol) for clouds, in order of first sight.
-const CLOUD_COLOURS = ["#0072B2", "#009E73", "#CC79A7", "#8C6D1F", "#56B4E9", "#6A3D9A", "#117733", "#882255"];
-const cloudColours = new Map();
-
-export function cloudColour(cloud) {
-  if (!cloudColours.has(cloud)) {
-    cloudColours.set(cloud, CLOUD_COLOURS[cloudColours.size % CLOUD_COLOURS.length]);
-  }
-  return cloudColours.get(cloud);
+export function sentence(text) {
+  const t = String(text || "").trim();
+  if (!t) return "";
+  const s = t.charAt(0).toUpperCase() + t.slice(1);
+  return /[.!?]$/.test(s) ? s : `${s}.`;
 }
 
-// Clouds get their colours in name order, so every page shows the same ones.
-export function assignCloudColours(clouds) {
-  for (const cloud of [...clouds].sort()) cloudColour(cloud);
+// The task's field names as the form shows them, in the IaaS's sentences.
+const FIELD_NAMES = {
+  max_time: "max time", max_cost: "max cost", max_robots: "max robots", min_battery: "min battery",
+  location: "location", sensing: "sensing", actuating: "actuating", priority: "priority",
+  execution: "execution", label: "label",
+};
+
+export function humanize(text) {
+  return String(text || "").replace(/\b(max_time|max_cost|max_robots|min_battery)\b/g, (name) => FIELD_NAMES[name]);
 }
 
 export const FINAL_STATES = new Set(["completed", "rejected", "canceled", "failed"]);
+export const ACTIVE_STATES = ["received", "selecting", "dispatched", "underway"];
+export const REQUEST_STATES = [...ACTIVE_STATES, "completed", "rejected", "canceled", "failed"];
+export const STATUSES = ["idle", "reserved", "busy", "charging", "offline"];
+export const PRIORITY = { balanced: "balanced", time: "time critical", cost: "cost critical" };
+
+// Clouds' colours come from the server (stable for a cloud's name); this is
+// for a cloud it has not described yet.
+const colours = new Map();
+export function setCloudColours(clouds) {
+  for (const cloud of clouds) colours.set(cloud.name, cloud.colour);
+}
+export function cloudColour(cloud) {
+  return colours.get(cloud) || "#64748b";
+}

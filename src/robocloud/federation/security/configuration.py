@@ -1,4 +1,4 @@
-"""Security between clouds on the Zenoh overlay, with Zenoh's own mechanisms.
+"""The overlay's security settings: TLS files, logins, whom a router trusts, and their flags.
 
 Three settings, each optional, all off by default (one machine, loopback):
 
@@ -9,13 +9,8 @@ Three settings, each optional, all off by default (one machine, loopback):
 - **Credentials** (``transport/auth/usrpwd``): a session proves a user name
   and password when it joins, and a router with a credentials file (one
   ``user:password`` a line) lets in only the users listed there.
-- **Access control** (``access_control``), on a cloud's router when TLS or
-  credentials are on: other clouds may ask this cloud's questions (info,
-  idle robots, fleet, status), but only the clouds it trusts may send the
-  commands for its robots (reserve, confirm, release, dispatch, cancel), and
-  nobody outside it may query its robots' command keys directly. With TLS the
-  trusted clouds are recognised by their certificate's common name, so the
-  ``origin`` a command claims is backed by the link it came on.
+- **Access control** (``access_control``, ``robocloud.federation.security.policy``),
+  on a cloud's router when TLS or credentials are on.
 
 ``OverlaySecurity.apply`` adds these to a ``zenoh.Config``;
 ``robocloud.fleet.zenoh_session`` calls it (``open_router(..., security=)``,
@@ -24,60 +19,24 @@ Three settings, each optional, all off by default (one machine, loopback):
 and ``robocloud sim`` (``--tls-ca``, ``--tls-cert``, ``--tls-key``,
 ``--zenoh-user``, ``--zenoh-password-file``, ``--zenoh-credentials``).
 See docs/security.md.
-
-Certificates for tests and operators::
-
-    python -m robocloud.federation.security make-certs --out certs cloud-a cloud-b cloud-c
-    python -m robocloud.federation.security make-certs --out certs --host iaas-b.example.org cloud-b
-
-The second run reuses ``certs/ca.pem`` and ``certs/ca.key``. It needs the
-``openssl`` command.
 """
 
 from __future__ import annotations
 
 import argparse
-import ipaddress
 import json
-import re
-import secrets
-import shutil
-import subprocess
-import sys
-import tempfile
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from robocloud.errors import InvalidInput, RoboCloudError
+from robocloud.errors import InvalidInput
 
 if TYPE_CHECKING:  # only for annotations: the command-line parser stays quick to import
     import zenoh
 
-# What a cloud answers anyone on the overlay, and the commands for its robots
-# (the queryables of robocloud.federation.overlay.ZenohOverlay).
-QUESTIONS = ("info", "idle", "fleet", "status")
-COMMANDS = ("reserve", "confirm", "release", "dispatch", "cancel")
-
-# Every message kind of Zenoh's access control except ``query``.
-_NOT_QUERIES = (
-    "put",
-    "delete",
-    "declare_subscriber",
-    "declare_queryable",
-    "reply",
-    "liveliness_token",
-    "liveliness_query",
-    "declare_liveliness_subscriber",
-)
-
 _CERT_BEGIN = "-----BEGIN CERTIFICATE-----"
 _KEY_END = "PRIVATE KEY-----"
-# A common name make-certs accepts, and that the access control can match.
-_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,63}")
-_HOSTNAME = re.compile(r"[A-Za-z0-9]([A-Za-z0-9-]{0,61}[A-Za-z0-9])?(\.[A-Za-z0-9-]{1,63})*")
-DEFAULT_HOSTS = ("localhost", "127.0.0.1", "::1")
 
 
 @dataclass(frozen=True)
@@ -197,10 +156,15 @@ class OverlaySecurity:
     def for_cloud(self, cloud: str, trusted: Iterable[str] = ()) -> OverlaySecurity:
         """This security for the router of ``cloud``: with access control for its robots.
 
-        ``trusted`` empty: every cloud that may join may send commands (as
-        ``Settings.trusted`` empty means in ``robocloud.iaas``).
+        With mutual TLS ``trusted`` must name at least one cloud: the router
+        gives each trusted cloud's certificate the command keys that name it
+        (``policy.check_trusted``). With logins only, empty means every peer
+        let in (as ``Settings.trusted`` empty means in ``robocloud.iaas``).
         """
-        return replace(self, cloud=cloud, trusted=tuple(trusted))
+        from robocloud.federation.security.policy import check_trusted
+
+        names = check_trusted(cloud, tuple(trusted), self.mutual_tls)
+        return replace(self, cloud=cloud, trusted=names)
 
     def apply(self, config: zenoh.Config, mode: str) -> None:
         """Add these settings to ``config`` of a session in ``mode`` (router or client)."""
@@ -243,91 +207,12 @@ class OverlaySecurity:
         if self.credentials is not None:
             entries[f"{usrpwd}/dictionary_file"] = str(self.credentials)
         if mode == "router" and self.cloud is not None and self.identifies_peers:
+            from robocloud.federation.security.policy import access_control
+
             entries["access_control"] = access_control(
                 self.cloud, self.trusted, by_certificate=self.mutual_tls
             )
         return entries
-
-
-def access_control(
-    cloud: str, trusted: Sequence[str] = (), by_certificate: bool = True
-) -> dict[str, Any]:
-    """Zenoh ``access_control`` for the router of ``cloud``.
-
-    Deny by default, then allow:
-
-    - everyone: every message but queries, both ways; queries going out;
-      queries coming in for the questions every cloud answers
-      (``robocloud/*/info`` ...), the scatter-gather of the federation;
-    - the trusted clouds: queries coming in for this cloud's commands, on
-      their exact keys. Everyone may send them when ``trusted`` is empty (as
-      ``Settings.trusted`` empty means), or when peers are not known by a
-      certificate (``by_certificate`` false): a router knows the user name
-      only of the peers that connected to it, not of those it connected to;
-    - this cloud itself (its own certificate or user, e.g. its operators'
-      tools): every query.
-
-    Allow rules and deny by default, never deny rules: Zenoh applies a rule to
-    a message whose key the rule's key includes, so a deny rule on
-    ``robocloud/<cloud>/dispatch`` would miss a query on ``robocloud/**``.
-    Nobody else may query this cloud's robots' command keys: commands reach
-    them through this cloud's IaaS, which checks who holds the robot.
-    """
-    by = "cert_common_names" if by_certificate else "usernames"
-    commands = [f"robocloud/{cloud}/{name}" for name in COMMANDS]
-    subjects: list[dict[str, Any]] = [{"id": "anyone"}, {"id": "itself", by: [cloud]}]
-    policies: list[dict[str, Any]] = [
-        {"id": "anyone", "subjects": ["anyone"], "rules": ["messages", "ask", "answer"]},
-        {"id": "itself", "subjects": ["itself"], "rules": ["everything"]},
-    ]
-    if trusted and by_certificate:
-        subjects.append({"id": "trusted", by: sorted(set(trusted))})
-        policies.append({"id": "trusted", "subjects": ["trusted"], "rules": ["commands"]})
-    else:
-        policies[0]["rules"].append("commands")
-    return {
-        "enabled": True,
-        "default_permission": "deny",
-        "rules": [
-            {
-                "id": "messages",
-                "permission": "allow",
-                "flows": ["ingress", "egress"],
-                "messages": list(_NOT_QUERIES),
-                "key_exprs": ["**"],
-            },
-            {
-                "id": "ask",
-                "permission": "allow",
-                "flows": ["egress"],
-                "messages": ["query"],
-                "key_exprs": ["**"],
-            },
-            {
-                "id": "answer",
-                "permission": "allow",
-                "flows": ["ingress"],
-                "messages": ["query"],
-                "key_exprs": [f"robocloud/*/{name}" for name in QUESTIONS],
-            },
-            {
-                "id": "commands",
-                "permission": "allow",
-                "flows": ["ingress"],
-                "messages": ["query"],
-                "key_exprs": commands,
-            },
-            {
-                "id": "everything",
-                "permission": "allow",
-                "flows": ["ingress"],
-                "messages": ["query"],
-                "key_exprs": ["**"],
-            },
-        ],
-        "subjects": subjects,
-        "policies": policies,
-    }
 
 
 def read_credentials(path: Path) -> dict[str, str]:
@@ -419,8 +304,13 @@ def add_arguments(parser: argparse.ArgumentParser, router: bool) -> None:
 
 
 def from_arguments(args: argparse.Namespace) -> OverlaySecurity | None:
-    """The security the flags of ``add_arguments`` ask for; None when they ask for none."""
-    return OverlaySecurity.from_options(
+    """The security the flags of ``add_arguments`` ask for; None when they ask for none.
+
+    For a router (``robocloud iaas``: ``args`` has ``cloud`` and ``trust``),
+    also checks now, before anything starts, that the trusted clouds fit the
+    access control it will get.
+    """
+    security = OverlaySecurity.from_options(
         ca=args.tls_ca,
         cert=args.tls_cert,
         key=args.tls_key,
@@ -428,158 +318,7 @@ def from_arguments(args: argparse.Namespace) -> OverlaySecurity | None:
         password_file=args.zenoh_password_file,
         credentials=getattr(args, "zenoh_credentials", None),
     )
-
-
-# -- certificates ---------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class Issued:
-    """A certificate and its private key, as files."""
-
-    cert: Path
-    key: Path
-
-
-def make_certs(
-    out: Path, names: Sequence[str], hosts: Sequence[str] = DEFAULT_HOSTS, days: int = 365
-) -> tuple[Issued, dict[str, Issued]]:
-    """A CA in ``out`` (made once, then reused) and a certificate for each of ``names``.
-
-    Each certificate has the name as its common name (how the access control
-    knows a cloud), and ``hosts`` and the name as its subject alternative
-    names: a router reached as ``tls/HOST:PORT`` must have HOST among them.
-    Every certificate serves both ends of a link (mutual TLS). Keys are
-    ECDSA P-256 in PKCS#8, readable by their owner only.
-    """
-    openssl = shutil.which("openssl")
-    if openssl is None:
-        raise RoboCloudError("make-certs needs the openssl command, which is not installed.")
-    if not names:
-        raise InvalidInput("name at least one cloud to make a certificate for.", field="names")
-    for name in names:
-        if not _NAME.fullmatch(name):
-            raise InvalidInput(
-                f"{name!r} cannot be a certificate name: use letters, digits, '.', '_' and '-' "
-                "(up to 64), starting with a letter or digit.",
-                field="names",
-            )
-    alt_names = [_alt_name(host) for host in hosts]
-    if days < 1:
-        raise InvalidInput("certificates must be valid for at least one day.", field="days")
-    out.mkdir(parents=True, exist_ok=True)
-    ca = Issued(out / "ca.pem", out / "ca.key")
-    if ca.cert.exists() != ca.key.exists():
-        raise InvalidInput(
-            f"{out} holds one of ca.pem and ca.key without the other: remove it or restore both.",
-            field="out",
-        )
-
-    for name in names:
-        for path in (out / f"{name}.pem", out / f"{name}.key"):
-            if path.exists():
-                raise InvalidInput(
-                    f"{path} exists already: remove it to make a new certificate for {name}.",
-                    field="names",
-                )
-
-    def run(*args: str) -> None:
-        # umask 077: keys are never readable by others, not even for a moment.
-        done = subprocess.run(
-            [openssl, *args], capture_output=True, text=True, check=False, umask=0o077
-        )
-        if done.returncode != 0:
-            raise RoboCloudError(f"openssl {args[0]} failed: {done.stderr.strip()}")
-
-    def new_key(path: Path) -> None:
-        run("genpkey", "-algorithm", "EC", "-pkeyopt", "ec_paramgen_curve:P-256", "-out", str(path))
-
-    if not ca.cert.exists():
-        new_key(ca.key)
-        run(
-            "req", "-x509", "-new", "-key", str(ca.key), "-sha256", "-days", str(days),
-            "-subj", "/CN=robocloud federation CA",
-            "-addext", "basicConstraints=critical,CA:TRUE",
-            "-addext", "keyUsage=critical,keyCertSign,cRLSign",
-            "-out", str(ca.cert),
-        )  # fmt: skip
-        ca.cert.chmod(0o644)
-    issued: dict[str, Issued] = {}
-    with tempfile.TemporaryDirectory() as scratch:
-        for name in names:
-            leaf = Issued(out / f"{name}.pem", out / f"{name}.key")
-            request = Path(scratch) / f"{name}.csr"
-            extensions = Path(scratch) / f"{name}.ext"
-            sans = list(
-                dict.fromkeys([*alt_names, *([f"DNS:{name}"] if _is_hostname(name) else [])])
-            )
-            extensions.write_text(
-                "basicConstraints=critical,CA:FALSE\n"
-                "keyUsage=critical,digitalSignature\n"
-                "extendedKeyUsage=serverAuth,clientAuth\n"
-                f"subjectAltName={','.join(sans)}\n",
-                encoding="ascii",
-            )
-            new_key(leaf.key)
-            run("req", "-new", "-key", str(leaf.key), "-subj", f"/CN={name}", "-out", str(request))
-            run(
-                "x509", "-req", "-in", str(request), "-CA", str(ca.cert), "-CAkey", str(ca.key),
-                "-set_serial", f"0x{secrets.token_hex(16)}", "-days", str(days), "-sha256",
-                "-extfile", str(extensions), "-out", str(leaf.cert),
-            )  # fmt: skip
-            leaf.cert.chmod(0o644)
-            issued[name] = leaf
-    return ca, issued
-
-
-def _alt_name(host: str) -> str:
-    try:
-        return f"IP:{ipaddress.ip_address(host)}"
-    except ValueError:
-        pass
-    if not _is_hostname(host):
-        raise InvalidInput(f"{host!r} is neither an IP address nor a host name.", field="hosts")
-    return f"DNS:{host}"
-
-
-def _is_hostname(text: str) -> bool:
-    return len(text) <= 253 and _HOSTNAME.fullmatch(text) is not None
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="python -m robocloud.federation.security",
-        description="Certificates for the robocloud overlay (mutual TLS between clouds).",
-    )
-    commands = parser.add_subparsers(dest="command", required=True)
-    certs = commands.add_parser(
-        "make-certs",
-        help="a CA (made once, then reused) and a certificate for each cloud",
-        description="Write OUT/ca.pem, OUT/ca.key and OUT/NAME.pem, OUT/NAME.key for each NAME. "
-        "A cloud's certificate must have its cloud name (--cloud) as NAME.",
-    )
-    certs.add_argument("names", nargs="+", metavar="NAME", help="cloud names, e.g. cloud-a")
-    certs.add_argument("--out", required=True, type=Path, metavar="DIR")
-    certs.add_argument(
-        "--host",
-        action="append",
-        default=None,
-        metavar="HOST",
-        help="a host name or IP address the routers are reached at, repeatable "
-        f"(default {', '.join(DEFAULT_HOSTS)})",
-    )
-    certs.add_argument("--days", type=int, default=365, help="validity (default 365)")
-    args = parser.parse_args(argv)
-    try:
-        ca, issued = make_certs(args.out, args.names, args.host or DEFAULT_HOSTS, args.days)
-    except RoboCloudError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
-    print(f"CA: {ca.cert} (keep {ca.key} offline: it signs new members)")
-    for name, leaf in issued.items():
-        print(f"{name}: {leaf.cert} {leaf.key}")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
+    cloud, trusted = getattr(args, "cloud", None), getattr(args, "trust", None)
+    if security is not None and cloud is not None and trusted is not None:
+        security.for_cloud(cloud, trusted)
+    return security

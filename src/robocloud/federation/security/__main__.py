@@ -1,0 +1,7 @@
+"""``python -m robocloud.federation.security make-certs ...``."""
+
+import sys
+
+from robocloud.federation.security.certificates import main
+
+sys.exit(main())

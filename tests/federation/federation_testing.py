@@ -1,0 +1,122 @@
+"""Clouds in one process for fast tests: memory stores and robots, Homes on a MemoryNetwork."""
+
+from __future__ import annotations
+
+import socket
+import threading
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from datetime import UTC, datetime, timedelta
+
+from robocloud.domain import Robot
+from robocloud.federation.memory import MemoryNetwork, MemoryOverlay
+from robocloud.federation.view import FederationView
+from robocloud.fleet import MemoryRobotLink
+from robocloud.iaas.home import Home
+from robocloud.storage import MemoryRequestStore, RequestStore
+
+
+def free_endpoint() -> str:
+    """A loopback TCP endpoint on a port free right now."""
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    return f"tcp/127.0.0.1:{port}"
+
+
+class FakeTime:
+    """One clock for the stores (UTC datetimes) and the Homes (monotonic seconds)."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._utc = datetime(2030, 1, 1, 12, 0, tzinfo=UTC)
+        self._mono = 1000.0
+
+    def utc(self) -> datetime:
+        with self._lock:
+            return self._utc
+
+    def mono(self) -> float:
+        with self._lock:
+            return self._mono
+
+    def advance(self, seconds: float) -> None:
+        with self._lock:
+            self._utc += timedelta(seconds=seconds)
+            self._mono += seconds
+
+
+@dataclass
+class Origin:
+    """What a cloud's request service tells its Home (an ``OriginStatus``)."""
+
+    coalitions: dict[str, list[str]] = field(default_factory=dict)
+    ended: list[tuple[str, str, str, str]] = field(default_factory=list)
+
+    def coalition_robots(self, request_id: str) -> list[str]:
+        return sorted(self.coalitions.get(request_id, []))
+
+    def loan_ended(self, request_id: str, robot: str, home: str, why: str) -> None:
+        self.ended.append((request_id, robot, home, why))
+
+
+@dataclass
+class Cloud:
+    name: str
+    store: RequestStore
+    link: MemoryRobotLink
+    home: Home
+    overlay: MemoryOverlay
+    view: FederationView
+    origin: Origin
+
+
+def robot(cloud: str, i: int, x: float = 10.0) -> Robot:
+    return Robot.model_validate(
+        {
+            "id": f"{cloud[-1]}-{i}",
+            "cloud": cloud,
+            "position": [x, 0.0],
+            "speed": 1.0,
+            "battery": 90.0,
+            "status": "idle",
+            "travel_cost_per_m": 0.1,
+            "capabilities": {"grabber": {"kind": "actuating", "time": 20.0, "cost": 3.0}},
+        }
+    )
+
+
+def clouds(
+    names: Iterable[str],
+    robots: int = 3,
+    trust: dict[str, list[str]] | None = None,
+    time: FakeTime | None = None,
+    stores: dict[str, RequestStore] | None = None,
+    lease_max: float = 30.0,
+    origin_deadline: float = 60.0,
+) -> tuple[MemoryNetwork, dict[str, Cloud]]:
+    """One cloud per name, each with ``robots`` robots (``a-0``, ``a-1`` ... for cloud-a)."""
+    network = MemoryNetwork()
+    time = time or FakeTime()
+    out = {}
+    for name in names:
+        store = (stores or {}).get(name) or MemoryRequestStore(time.utc)
+        link = MemoryRobotLink(
+            name, [robot(name, i, 10.0 * (i + 1)) for i in range(robots)], clock=time.mono
+        )
+        home = Home(
+            name,
+            store,
+            link,
+            (trust or {}).get(name),
+            lease_max=lease_max,
+            origin_deadline=origin_deadline,
+            clock=time.utc,
+            monotonic=time.mono,
+        )
+        overlay = network.join(name, home, link)
+        view = FederationView(name, store, link, overlay)
+        origin = Origin()
+        home.overlay, home.origin, home.lenders = overlay, origin, view.lenders
+        out[name] = Cloud(name, store, link, home, overlay, view, origin)
+    return network, out

@@ -1,0 +1,103 @@
+"""The federation view: one selection's robots from every cloud, reserved at each robot's home."""
+
+from __future__ import annotations
+
+from federation_testing import clouds
+
+from robocloud.domain import Task
+from robocloud.fleet.messages import Assign
+
+TASK = Task.model_validate(
+    {
+        "location": [0.0, 0.0],
+        "actuating": {"grabber": 1},
+        "max_robots": 3,
+        "max_cost": 100.0,
+        "max_time": 300.0,
+        "min_battery": 50.0,
+    }
+)
+
+
+def go(request_id: str) -> Assign:
+    return Assign(request_id=request_id, location=[0.0, 0.0], capabilities=["grabber"])
+
+
+def test_remote_robots_leave_out_a_cloud_that_does_not_answer() -> None:
+    network, c = clouds(("cloud-a", "cloud-b", "cloud-c"), robots=2)
+    view = c["cloud-a"].view
+    seen = view.remote_robots(TASK, exclude={"b-1"})
+    assert sorted(r.id for r in seen.robots) == ["b-0", "c-0", "c-1"]
+    assert seen.notes == []
+    network.mute("cloud-c")
+    seen = view.remote_robots(TASK, exclude=set())
+    assert sorted(r.id for r in seen.robots) == ["b-0", "b-1"]
+    assert seen.notes == ["cloud-c did not answer within 500 ms; its robots were left out"]
+    network.cut("cloud-c")  # gone: no longer expected
+    assert view.remote_robots(TASK, exclude=set()).notes == []
+    network.mend("cloud-c")
+    # A lent robot is no longer idle at its home.
+    assert c["cloud-c"].view.reserve("req-c", [("b-0", "cloud-b")]) == []
+    assert sorted(r.id for r in view.remote_robots(TASK, exclude=set()).robots) == [
+        "b-1",
+        "c-0",
+        "c-1",
+    ]
+
+
+def test_reserve_is_all_or_nothing_across_clouds() -> None:
+    _, c = clouds(("cloud-a", "cloud-b", "cloud-c"), robots=2)
+    a, b, cc = c["cloud-a"], c["cloud-b"], c["cloud-c"]
+    assert cc.view.reserve("req-c", [("b-1", "cloud-b")]) == []
+    rid, _ = a.store.create_request("app", {})
+    pairs = [("a-0", "cloud-a"), ("c-0", "cloud-c"), ("b-0", "cloud-b"), ("b-1", "cloud-b")]
+    assert a.view.reserve(rid.id, pairs) == ["b-1"]
+    # Every hold of the try is given back: at home and at cloud-c.
+    assert a.store.reservations() == {}
+    assert cc.store.loans() == []
+    assert [loan.robot for loan in b.store.loans()] == ["b-1"]
+    assert a.view.lenders() == ["cloud-b", "cloud-c"]
+    assert a.view.reserve(rid.id, pairs[:3]) == []
+    assert [r.id for r in a.view.local_robots() if r.status == "reserved"] == ["a-0"]
+
+
+def test_dispatch_confirm_follow_and_cancel_a_remote_robot() -> None:
+    _, c = clouds(("cloud-a", "cloud-b"), robots=2)
+    a, b = c["cloud-a"], c["cloud-b"]
+    rid = "req-a1"
+    # Confirming without a lease reports the robot lost.
+    assert a.view.confirm(rid, [("b-0", "cloud-b")]) == ["b-0"]
+    assert a.view.reserve(rid, [("b-0", "cloud-b")]) == []
+    ack = a.view.assign("b-0", "cloud-b", go(rid))
+    assert ack.ok
+    assert a.view.confirm(rid, [("b-0", "cloud-b")]) == []
+    assert ("cloud-b", "b-0") in a.overlay.watched()
+    b.link.step(2)
+    state = a.overlay.states()["b-0"]
+    assert state.task is not None and state.task.request_id == rid
+    assert "b-0" in a.view.ages()
+    heard: list[str] = []
+    stop = a.view.on_state(lambda s: heard.append(s.id))
+    b.link.step(1)
+    stop()
+    assert heard == ["b-0"]
+    a.view.cancel("b-0", "cloud-b", rid)
+    assert b.store.loans() == []
+    assert b.link.states()["b-0"].task is None
+    assert ("cloud-b", "b-0") not in a.overlay.watched()
+
+
+def test_release_gives_robots_back_to_every_home() -> None:
+    _, c = clouds(("cloud-a", "cloud-b"), robots=2)
+    a, b = c["cloud-a"], c["cloud-b"]
+    record, _ = a.store.create_request("app", {})
+    pairs = [("a-0", "cloud-a"), ("b-0", "cloud-b"), ("b-1", "cloud-b")]
+    assert a.view.reserve(record.id, pairs) == []
+    a.view.release(record.id, [("b-0", "cloud-b")], "refused")
+    assert [loan.robot for loan in b.store.loans()] == ["b-1"]
+    a.view.release(record.id, None)  # this cloud's holds only
+    assert a.store.reservations() == {}
+    assert [loan.robot for loan in b.store.loans()] == ["b-1"]
+    a.view.release(record.id, pairs, "canceled")
+    assert b.store.loans() == []
+    a.view.release(record.id, pairs, "canceled")  # again: harmless

@@ -1,0 +1,134 @@
+"""IaaSs answering like ``robocloud iaas`` does, in memory, behind one httpx.MockTransport.
+
+Each fake is reached by its host (``http://cloud-a.test``); a test can make
+one refuse connections (``down``), hang until the client's timeout
+(``hang``), or answer anything (``answer``). Requests keep their
+Idempotency-Key, as the real store does.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from datetime import UTC, datetime, timedelta
+from typing import Any
+
+import httpx
+
+KEY = "s3cret-key"
+START = datetime(2026, 1, 1, tzinfo=UTC)
+
+
+def robot(robot_id: str, cloud: str, status: str = "idle", caps: tuple[str, ...] = ("grabber",),
+          position: tuple[float, float] = (100.0, 200.0), battery: float = 80.0,
+          seen_ago: float | None = 0.1) -> dict[str, Any]:
+    return {"id": robot_id, "cloud": cloud, "kind": "tribot", "position": list(position),
+            "speed": 1.0, "battery": battery, "status": status, "capabilities": list(caps),
+            "capability_kinds": {}, "request": None, "progress": None, "seen_ago": seen_ago}
+
+
+class FakeIaas:
+    def __init__(self, cloud: str, robots: list[dict[str, Any]] | None = None) -> None:
+        self.cloud = cloud
+        self.robots = robots or []
+        self.requests: dict[str, dict[str, Any]] = {}
+        self.keys: dict[str, str] = {}
+        self.calls: list[httpx.Request] = []
+        self.answer: Callable[[httpx.Request], httpx.Response] | None = None
+        self.answer_only: str | None = None  # a method: ``answer`` for it alone
+        self.down = False
+        self.hang = False
+        self.listing: list[dict[str, Any]] | None = None  # GET /v1/clouds
+        self.clock = START
+
+    @property
+    def url(self) -> str:
+        return f"http://{self.cloud}.test"
+
+    def add(self, label: str | None = None, state: str = "received", **task: Any
+            ) -> dict[str, Any]:
+        self.clock += timedelta(seconds=1)
+        at = self.clock.isoformat().replace("+00:00", "Z")
+        request_id = f"req-{self.cloud[-1]}{len(self.requests):04d}"
+        record = {"id": request_id, "label": label, "state": state, "reason": None,
+                  "created_at": at, "updated_at": at,
+                  "task": {"location": [1.0, 2.0], "actuating": {"grabber": 1}, **task},
+                  "coalition": None, "time": None, "cost": None, "pareto": [],
+                  "optimizer": None, "selection_ms": None,
+                  "history": [{"kind": "state", "state": state, "at": at, "detail": None}]}
+        self.requests[request_id] = record
+        return record
+
+    def __call__(self, request: httpx.Request) -> httpx.Response:
+        self.calls.append(request)
+        if self.down:
+            raise httpx.ConnectError("Connection refused", request=request)
+        if self.hang:
+            raise httpx.ReadTimeout("timed out", request=request)
+        if self.answer is not None and self.answer_only in (None, request.method):
+            return self.answer(request)
+        path, method = request.url.path, request.method
+        if path == "/healthz":
+            return httpx.Response(200, json={"status": "ok", "cloud": self.cloud,
+                                             "robots": len(self.robots), "store": "sqlite",
+                                             "time_scale": 10.0})
+        if request.headers.get("authorization") != f"Bearer {KEY}":
+            return httpx.Response(401, json={"detail": "the API key is not valid."})
+        if path == "/v1/robots":
+            return httpx.Response(200, json=self.robots)
+        if path == "/v1/clouds":
+            listing = self.listing if self.listing is not None else [
+                {"cloud": self.cloud, "robots": len(self.robots), "idle": 0, "offline": 0}]
+            return httpx.Response(200, json=listing)
+        if path == "/v1/requests" and method == "GET":
+            return self.list(request)
+        if path == "/v1/requests" and method == "POST":
+            return self.create(request)
+        parts = path.split("/")
+        if len(parts) >= 4 and parts[3] in self.requests:
+            record = self.requests[parts[3]]
+            if parts[-1] == "cancel":
+                record["state"] = "canceled"
+            return httpx.Response(200, json=record)
+        return httpx.Response(404, json={"detail": f"there is no request {parts[-1]!r}."})
+
+    def list(self, request: httpx.Request) -> httpx.Response:
+        params = request.url.params
+        items = sorted(self.requests.values(), key=lambda r: (r["created_at"], r["id"]),
+                       reverse=True)
+        if params.get("state"):
+            items = [r for r in items if r["state"] == params["state"]]
+        if params.get("before"):
+            if params["before"] not in self.requests:
+                return httpx.Response(422, json={"detail": "before: no such request."})
+            edge = self.requests[params["before"]]
+            items = [r for r in items
+                     if (r["created_at"], r["id"]) < (edge["created_at"], edge["id"])]
+        limit = int(params.get("limit", 50))
+        page = items[:limit]
+        return httpx.Response(200, json={"items": page,
+                                         "next": page[-1]["id"] if len(items) > limit else None})
+
+    def create(self, request: httpx.Request) -> httpx.Response:
+        key = request.headers.get("idempotency-key")
+        if key and key in self.keys:
+            return httpx.Response(202, json=self.requests[self.keys[key]])
+        task = json.loads(request.content)
+        record = self.add(task.pop("label", None), **task)
+        if key:
+            self.keys[key] = record["id"]
+        return httpx.Response(202, json=record)
+
+
+class FakeFederation:
+    """Several fake IaaSs behind one transport, each at its own host."""
+
+    def __init__(self, *clouds: FakeIaas) -> None:
+        self.clouds = {c.cloud: c for c in clouds}
+
+    def __call__(self, request: httpx.Request) -> httpx.Response:
+        cloud = request.url.host.removesuffix(".test")
+        return self.clouds[cloud](request)
+
+    def transport(self) -> httpx.MockTransport:
+        return httpx.MockTransport(self)

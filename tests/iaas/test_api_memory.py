@@ -61,7 +61,10 @@ def fleet() -> MemoryRobotLink:
 @pytest.fixture
 def client(fleet: MemoryRobotLink) -> Iterator[TestClient]:
     settings = Settings(
-        cloud="cloud-a", api_keys={"key-a": "app-a", "key-b": "app-b"}, offline_after=1.0
+        cloud="cloud-a",
+        api_keys={"key-a": "app-a", "key-b": "app-b"},
+        offline_after=1.0,
+        selection_workers=0,  # selections in a thread: no processes to spawn per test
     )
     app = create_app(settings, store=MemoryRequestStore(), link=fleet)
     with TestClient(app) as c:
@@ -249,7 +252,7 @@ def test_a_stored_request_that_no_longer_validates_fails_on_restart(
 ) -> None:
     store = MemoryRequestStore()
     old, _ = store.create_request("app-a", {**TASK, "colour": "red"}, None, None)
-    settings = Settings(cloud="cloud-a", api_keys={"key-a": "app-a"})
+    settings = Settings(cloud="cloud-a", api_keys={"key-a": "app-a"}, selection_workers=0)
     with TestClient(create_app(settings, store=store, link=fleet)) as client:
         body = client.get(f"/v1/requests/{old.id}", headers=A).json()
         assert body["state"] == "failed"

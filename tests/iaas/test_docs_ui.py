@@ -22,7 +22,9 @@ LINK = re.compile(r"""(?:src|href)\s*=\s*["']([^"']+)["']""")
 @pytest.fixture
 def client() -> Iterator[TestClient]:
     app = create_app(
-        Settings(cloud="cloud-a"), store=MemoryRequestStore(), link=MemoryRobotLink("cloud-a", [])
+        Settings(cloud="cloud-a", selection_workers=0),
+        store=MemoryRequestStore(),
+        link=MemoryRobotLink("cloud-a", []),
     )
     with TestClient(app) as c:
         yield c

@@ -34,7 +34,9 @@ def server() -> Iterator[str]:
         probe.bind(("127.0.0.1", 0))
         port = probe.getsockname()[1]
     app = create_app(
-        Settings(cloud="cloud-a"), store=MemoryRequestStore(), link=MemoryRobotLink("cloud-a", [])
+        Settings(cloud="cloud-a", selection_workers=0),
+        store=MemoryRequestStore(),
+        link=MemoryRobotLink("cloud-a", []),
     )
     the_server = uvicorn.Server(
         uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning")

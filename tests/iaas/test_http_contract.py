@@ -46,7 +46,7 @@ ROBOT = Robot.model_validate(
 def client_for(store: RequestStore) -> TestClient:
     # Applications of their own: the PostgreSQL database is shared by the session's tests.
     apps = {"key-a": f"a-{secrets.token_hex(4)}", "key-b": f"b-{secrets.token_hex(4)}"}
-    settings = Settings(cloud="cloud-a", api_keys=apps)
+    settings = Settings(cloud="cloud-a", api_keys=apps, selection_workers=0)
     return TestClient(create_app(settings, store=store, link=MemoryRobotLink("cloud-a", [ROBOT])))
 
 

@@ -287,6 +287,13 @@ def test_after_a_restart_a_robot_that_does_not_report_the_request_fails() -> Non
     assert note.detail == "robot a-1 failed: it no longer reports this request after the restart"
 
 
+def test_a_selection_cut_short_with_nothing_found_fails_rather_than_rejects() -> None:
+    cut = lc.Selected(None, {}, "the time budget of 2 s ran out", complete=False)
+    after, effects = lc.decide(SITUATIONS["selecting"], cut, NOW)
+    assert after.state == "failed"
+    assert effects == [lc.Commit("failed", "the time budget of 2 s ran out", None, {})]
+
+
 def test_too_many_attempts_fail_the_request_with_the_reason() -> None:
     life = replace(
         SITUATIONS["reserving"],

@@ -189,6 +189,13 @@ class ZenohOverlay:
             )
             for name in (*keys.QUESTIONS, *keys.COMMANDS)
         ]
+        # The live clouds, kept by their tokens' comings and goings: a selection
+        # asks which clouds to wait for, and a query per selection cost more
+        # than the selection (the liveliness get waits for its timeout).
+        self._live: set[str] = set()
+        self._presence = session.liveliness().declare_subscriber(
+            f"{keys.CLOUDS_TOKEN}/*", self._on_presence, history=True
+        )
         # Declared last: a cloud that sees the token can query every key above.
         self._token = session.liveliness().declare_token(keys.cloud_token(cloud))
 
@@ -199,13 +206,16 @@ class ZenohOverlay:
     # -- presence ------------------------------------------------------------
 
     def clouds(self) -> list[str]:
-        names = set()
-        for reply in self._session.liveliness().get(
-            f"{keys.CLOUDS_TOKEN}/*", timeout=self._timeout
-        ):
-            if reply.ok is not None:
-                names.add(str(reply.ok.key_expr).rsplit("/", 1)[-1])
-        return sorted(names)
+        with self._lock:
+            return sorted(self._live | {self._cloud})
+
+    def _on_presence(self, sample: zenoh.Sample) -> None:
+        name = str(sample.key_expr).rsplit("/", 1)[-1]
+        with self._lock:
+            if sample.kind == zenoh.SampleKind.PUT:
+                self._live.add(name)
+            else:
+                self._live.discard(name)
 
     def infos(self) -> list[CloudInfo]:
         out = [self._desk.info()]
@@ -224,6 +234,8 @@ class ZenohOverlay:
         started = time.perf_counter()
         expected = set(self.clouds()) - {self.cloud}
         gathered = Gathered()
+        if not expected:
+            return gathered  # alone on the overlay: nobody to ask
         for payload in self._scatter("idle", query, timeout):
             try:
                 reply = IdleReply.model_validate_json(payload)
@@ -300,6 +312,7 @@ class ZenohOverlay:
 
     def close(self) -> None:
         self._token.undeclare()  # type: ignore[no-untyped-call]
+        self._presence.undeclare()  # type: ignore[no-untyped-call]
         for queryable in self._queryables:
             queryable.undeclare()  # type: ignore[no-untyped-call]
         with self._lock:

@@ -252,13 +252,13 @@ class RequestActor:
         robots = [r for r in local if r.id not in exclude] + gathered.robots
         result = await shell.selector(robots, effect.task)
         selection = selection_json(result)
-        notes = tuple(gathered.notes)
+        notes = (*gathered.notes, *([result.note] if result.note else []))
         if result.chosen is None:
-            return lc.Selected(None, selection, result.reason, notes)
+            return lc.Selected(None, selection, result.reason, notes, result.complete)
         chosen = members_for(robots, effect.task, result.chosen.robots, effect.offset)
         # Other selections see them as taken until the reservation is done.
         shell.claim(self.request_id, result.chosen.robots)
-        return lc.Selected(chosen, selection, None, notes)
+        return lc.Selected(chosen, selection, None, notes, result.complete)
 
     async def _reserve(self, robots: lc.Pairs) -> lc.Event:
         try:
@@ -342,4 +342,6 @@ def selection_json(result: SelectionResult) -> dict[str, Any]:
         "optimizer": result.optimizer,
         "elapsed_ms": round(result.elapsed_ms, 3),
         "candidates": result.candidates,
+        "complete": result.complete,
+        "note": result.note,
     }

@@ -59,7 +59,13 @@ class Settings:
     # ids robots come and go with); at most max_fleet robots are followed.
     forget_after: float = 600.0
     max_fleet: int = 100_000
-    cancel_timeout: float = 5.0  # seconds a cancel waits for its state to be stored
+    cancel_timeout: float = 15.0  # seconds a cancel waits for its state to be stored
+    # Selections run in worker processes (robocloud.iaas.selector); 0: in a
+    # thread of the IaaS (for fast tests). The budget is the time a selection
+    # may take; its worker is stopped a second after it.
+    selection_workers: int = 2
+    selection_budget: float = 2.0
+    selection_memory_mb: int = 1024
     # Simulated robots may run faster than the wall clock (``robocloud sim
     # --speedup``); the time left for a replacement is counted in robot time.
     time_scale: float = 1.0

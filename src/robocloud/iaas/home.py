@@ -185,7 +185,9 @@ class Home:
         )
 
     def idle_robots(self, query: IdleQuery) -> IdleReply:
-        if not self._trusts(query.origin):
+        # The scatter-gather reaches this cloud's own desk too: its robots are
+        # already in the view, so they need not travel.
+        if query.origin == self.cloud or not self._trusts(query.origin):
             return IdleReply(cloud=self.cloud, robots=[])
         held = self.store.reservations()
         wanted = set(query.capabilities)

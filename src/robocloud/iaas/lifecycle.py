@@ -174,6 +174,10 @@ class Selected:
     selection: Mapping[str, Any]
     reason: str | None = None
     notes: tuple[str, ...] = ()  # what gathering the robots noticed (a cloud left out)
+    # False when the search was cut (its time budget, its worker stopped): with
+    # nothing chosen, the task was not shown infeasible, so the request fails
+    # rather than being rejected.
+    complete: bool = True
 
 
 @dataclass(frozen=True)
@@ -390,7 +394,8 @@ def _on_selected(life: Life, event: Selected, now: Now) -> Step:
     if event.chosen is None:
         reason = event.reason or "no feasible coalition"
         if attempt.purpose == "dispatch":
-            life, effects = _end(life, "rejected", reason=reason, selection=dict(event.selection))
+            state = "rejected" if event.complete else "failed"
+            life, effects = _end(life, state, reason=reason, selection=dict(event.selection))
             return life, notes + effects
         life, effects = _replacement_failed(life, attempt, reason)
         return life, notes + effects

@@ -40,6 +40,7 @@ from robocloud.fleet.messages import State
 from robocloud.iaas import lifecycle as lc
 from robocloud.iaas.actor import RequestActor, Selector, Shell
 from robocloud.iaas.config import Settings
+from robocloud.iaas.selector import SelectionPool, SelectorSettings
 from robocloud.selection.pipeline import select
 from robocloud.selection.result import SelectionResult
 from robocloud.storage import RequestRecord, RequestStore
@@ -77,6 +78,20 @@ class RequestService:
         self._store_threads = ThreadPoolExecutor(
             STORE_THREADS, thread_name_prefix=f"store-{settings.cloud}"
         )
+        self._pool: SelectionPool | None = None
+        if selector is None and settings.selection_workers > 0:
+            self._pool = SelectionPool(
+                SelectorSettings(
+                    optimizer=settings.optimizer,
+                    seed=settings.seed,
+                    budget_s=settings.selection_budget,
+                    workers=settings.selection_workers,
+                    max_workers=max(settings.selection_workers, 2 * settings.selection_workers),
+                    memory_mb=settings.selection_memory_mb,
+                ),
+                self.blocking,
+            )
+            selector = self._pool
         self._shell = Shell(
             store=store,
             view=view,
@@ -114,6 +129,8 @@ class RequestService:
 
     async def start(self) -> None:
         self._loop = asyncio.get_running_loop()
+        if self._pool is not None:
+            self._pool.start()
         self._stop_listening = self.view.on_state(self._state_from_thread)
         await self._recover()
 
@@ -125,6 +142,8 @@ class RequestService:
         for queues in self._listeners.values():
             for queue in queues:
                 queue.put_nowait(None)
+        if self._pool is not None:
+            self._pool.close()
         self._io.shutdown(wait=False, cancel_futures=True)
         self._store_threads.shutdown(wait=False, cancel_futures=True)
 
@@ -170,6 +189,7 @@ class RequestService:
             task,
             self.settings.optimizer,  # type: ignore[arg-type]
             seed=self.settings.seed,
+            budget_s=self.settings.selection_budget,
         )
         return result
 

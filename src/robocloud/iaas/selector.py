@@ -1,0 +1,250 @@
+"""Selections in worker processes, each with a hard time limit and a memory cap.
+
+The selection pipeline is pure CPU work; on the event loop's process it would
+hold the GIL and stall every other request. Here it runs in a small pool of
+worker processes (``spawn``: they share nothing with the IaaS's threads):
+
+- the IaaS filters the robots first (Algorithm 2, cheap) and sends the
+  candidates only, as plain tuples (pickling pydantic models costs more than
+  selecting among them);
+- each selection is given a time budget (``select``'s ``budget_s``: a cut
+  search returns the best front found so far, said so in the result); a worker
+  that has not answered ``grace`` seconds after its budget is killed and
+  replaced, and the request fails with that reason;
+- each worker's address space is capped (``RLIMIT_AS``): a selection that
+  would allocate past it fails with a reason instead of growing the IaaS;
+- selections run in parallel, one per worker; when every worker is busy the
+  pool starts another, up to ``max_workers``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import multiprocessing
+import time
+from collections.abc import Awaitable, Callable, Sequence
+from dataclasses import dataclass
+from multiprocessing.connection import Connection
+from typing import Any
+
+from robocloud.domain import Capability, Robot, Task
+from robocloud.selection.filtering import filter_robots
+from robocloud.selection.result import SelectionResult
+
+log = logging.getLogger(__name__)
+
+Wire = tuple[Any, ...]  # a robot as plain values, see ``to_wire``
+READY = "ready"
+
+
+def to_wire(robot: Robot) -> Wire:
+    caps = tuple((n, c.kind, c.time, c.cost) for n, c in robot.capabilities.items())
+    x, y = robot.position
+    return (
+        robot.id,
+        robot.cloud,
+        x,
+        y,
+        robot.speed,
+        robot.battery,
+        robot.status,
+        robot.travel_cost_per_m,
+        caps,
+    )
+
+
+def from_wire(wire: Wire) -> Robot:
+    """The robot again; its values were validated where it came from (its state message)."""
+    rid, cloud, x, y, speed, battery, status, travel, caps = wire
+    return Robot.model_construct(
+        id=rid,
+        cloud=cloud,
+        position=[x, y],
+        speed=speed,
+        battery=battery,
+        status=status,
+        travel_cost_per_m=travel,
+        capabilities={n: Capability.model_construct(kind=k, time=t, cost=c) for n, k, t, c in caps},
+    )
+
+
+def serve(conn: Connection, memory_mb: int) -> None:
+    """A worker process: answer selections until the IaaS closes the pipe."""
+    import resource
+
+    from robocloud.selection.pipeline import select
+
+    limit = memory_mb * 1024 * 1024
+    resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+    conn.send(READY)
+    while True:
+        try:
+            message = conn.recv()
+        except (EOFError, OSError):
+            return
+        wires, task_json, optimizer, seed, budget_s = message
+        try:
+            robots = [from_wire(w) for w in wires]
+            task = Task.model_validate(task_json)
+            answer: tuple[str, Any] = (
+                "ok",
+                select(robots, task, optimizer, seed=seed, budget_s=budget_s),
+            )
+        except MemoryError:
+            answer = ("error", f"the selection needed more than its {memory_mb} MB of memory")
+        except Exception as error:  # one sentence back; the worker goes on
+            answer = ("error", f"the selection failed: {error}")
+        conn.send(answer)
+
+
+class Worker:
+    def __init__(self, context: Any, memory_mb: int) -> None:
+        self.conn, child = context.Pipe()
+        self.process = context.Process(
+            target=serve, args=(child, memory_mb), daemon=True, name="robocloud-selection"
+        )
+        self.process.start()
+        child.close()
+        self.ready = False
+
+    def call(self, message: tuple[Any, ...], limit: float) -> tuple[str, Any] | None:
+        """Send a selection and wait up to ``limit`` seconds for its answer (None: no answer).
+
+        A worker that died (killed by the system, say) answers ``("died", why)``.
+        """
+        try:
+            if not self.ready:
+                if not self.conn.poll(60):  # a cold start imports numpy and the pipeline
+                    return None
+                self.conn.recv()
+                self.ready = True
+            self.conn.send(message)
+            if not self.conn.poll(limit):
+                return None
+            answer: tuple[str, Any] = self.conn.recv()
+        except (EOFError, OSError):
+            return ("died", "the selection's worker process ended unexpectedly")
+        return answer
+
+    def kill(self) -> None:
+        with contextlib.suppress(Exception):
+            self.process.kill()
+            self.process.join(5)
+        self.conn.close()
+
+    def close(self) -> None:
+        self.conn.close()  # the worker sees EOF and ends
+        self.process.join(2)
+        if self.process.is_alive():
+            self.kill()
+
+
+@dataclass
+class SelectorSettings:
+    optimizer: str = "auto"
+    seed: int = 0
+    budget_s: float = 2.0  # what select may spend; its search stops there
+    grace: float = 1.0  # past the budget, the worker is killed
+    workers: int = 2  # kept ready
+    max_workers: int = 4  # at most, when every worker is busy
+    memory_mb: int = 1024  # each worker's address space
+
+
+class SelectionPool:
+    """A ``Selector`` (``robocloud.iaas.actor``): ``await pool(robots, task)``."""
+
+    def __init__(
+        self,
+        settings: SelectorSettings,
+        blocking: Callable[..., Awaitable[Any]],
+    ) -> None:
+        self.settings = settings
+        self._blocking = blocking
+        self._context = multiprocessing.get_context("spawn")
+        self._idle: asyncio.Queue[Worker] = asyncio.Queue()
+        self._workers: set[Worker] = set()
+        self.killed = 0  # workers killed past their limit, for the logs and tests
+
+    def start(self) -> None:
+        for _ in range(self.settings.workers):
+            self._idle.put_nowait(self._spawn())
+
+    def _spawn(self) -> Worker:
+        worker = Worker(self._context, self.settings.memory_mb)
+        self._workers.add(worker)
+        return worker
+
+    async def _checkout(self) -> Worker:
+        if self._idle.empty() and len(self._workers) < self.settings.max_workers:
+            return self._spawn()
+        return await self._idle.get()
+
+    async def __call__(self, robots: Sequence[Robot], task: Task) -> SelectionResult:
+        settings = self.settings
+        started = time.perf_counter()
+        candidates = await self._blocking(_candidates, robots, task)
+        message = (
+            candidates,
+            task.model_dump(mode="json"),
+            settings.optimizer,
+            settings.seed,
+            settings.budget_s,
+        )
+        worker = await self._checkout()
+        answer = None
+        try:
+            answer = await self._blocking(worker.call, message, settings.budget_s + settings.grace)
+        finally:
+            if answer is None or answer[0] == "died":
+                self._workers.discard(worker)
+                worker.kill()
+                self.killed += 1
+                if len(self._workers) < settings.workers:
+                    self._idle.put_nowait(self._spawn())
+            else:
+                self._idle.put_nowait(worker)
+        elapsed = (time.perf_counter() - started) * 1000
+        if answer is None:
+            log.warning(
+                "a selection over %d candidates ran past its limit; its worker was stopped",
+                len(candidates),
+            )
+            return failed(
+                len(candidates),
+                elapsed,
+                settings,
+                f"the selection ran past its time limit of "
+                f"{settings.budget_s + settings.grace:g} s and was stopped",
+            )
+        kind, value = answer
+        if kind == "ok":
+            assert isinstance(value, SelectionResult)
+            return value
+        return failed(len(candidates), elapsed, settings, str(value))
+
+    def close(self) -> None:
+        for worker in list(self._workers):
+            worker.close()
+        self._workers.clear()
+
+
+def _candidates(robots: Sequence[Robot], task: Task) -> list[Wire]:
+    return [to_wire(r) for r in filter_robots(robots, task)]
+
+
+def failed(
+    candidates: int, elapsed_ms: float, settings: SelectorSettings, reason: str
+) -> SelectionResult:
+    """A selection that did not finish: nothing chosen, not complete, and why."""
+    return SelectionResult(
+        candidates=candidates,
+        ranking=(),
+        pareto=(),
+        chosen=None,
+        reason=reason,
+        optimizer="mopso" if settings.optimizer == "mopso" else "exact",
+        elapsed_ms=elapsed_ms,
+        complete=False,
+    )

@@ -1,0 +1,101 @@
+"""Selections in worker processes: the in-process answer, a hard limit, a worker replaced."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import signal
+from collections.abc import Awaitable, Callable
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any
+
+import pytest
+
+from robocloud.domain import Robot, Task
+from robocloud.iaas.selector import SelectionPool, SelectorSettings, from_wire, to_wire
+from robocloud.selection.pipeline import select
+from robocloud.sim.scenario import wildfire_robots, wildfire_task
+
+pytestmark = pytest.mark.slow  # each pool spawns Python processes
+
+ROBOTS = [Robot.model_validate(r) for r in wildfire_robots(1000, 3, 1)]
+TASK = Task.model_validate(wildfire_task(1))
+
+
+def run(settings: SelectorSettings, work: Callable[[SelectionPool], Awaitable[Any]]) -> Any:
+    threads = ThreadPoolExecutor(4)
+
+    async def main() -> Any:
+        loop = asyncio.get_running_loop()
+
+        async def blocking(function: Callable[..., Any], *args: Any) -> Any:
+            return await loop.run_in_executor(threads, lambda: function(*args))
+
+        pool = SelectionPool(settings, blocking)
+        pool.start()
+        try:
+            return await work(pool)
+        finally:
+            pool.close()
+
+    try:
+        return asyncio.run(main())
+    finally:
+        threads.shutdown()
+
+
+def test_robots_cross_to_the_worker_unchanged() -> None:
+    assert [from_wire(to_wire(r)) for r in ROBOTS] == ROBOTS
+
+
+def test_a_worker_answers_what_the_pipeline_answers_in_process() -> None:
+    async def work(pool: SelectionPool) -> Any:
+        return [await pool(ROBOTS, TASK) for _ in range(2)]
+
+    answers = run(SelectorSettings(workers=1), work)
+    here = select(ROBOTS, TASK, "auto", seed=0, budget_s=2.0)
+    for answer in answers:
+        assert answer.chosen == here.chosen
+        assert answer.pareto == here.pareto
+        assert answer.candidates == here.candidates and answer.complete
+
+
+def test_a_worker_past_its_limit_is_stopped_and_replaced() -> None:
+    async def work(pool: SelectionPool) -> Any:
+        late = await pool(ROBOTS, TASK)
+        # The pool goes on with a new worker (given a limit it can meet).
+        pool.settings.budget_s, pool.settings.grace = 2.0, 1.0
+        again = await pool(ROBOTS, TASK)
+        return late, again, pool.killed
+
+    # No selection of 1,000 robots answers within a millisecond.
+    late, again, killed = run(SelectorSettings(workers=1, budget_s=0.001, grace=0.0), work)
+    assert late.chosen is None and late.complete is False
+    assert late.reason == "the selection ran past its time limit of 0.001 s and was stopped"
+    assert killed == 1
+    assert again.chosen is not None and again.complete
+
+
+def test_a_worker_that_dies_is_replaced() -> None:
+    async def work(pool: SelectionPool) -> Any:
+        first = await pool(ROBOTS, TASK)
+        [worker] = list(pool._workers)
+        os.kill(worker.process.pid, signal.SIGKILL)
+        worker.process.join(5)
+        lost = await pool(ROBOTS, TASK)
+        after = await pool(ROBOTS, TASK)
+        return first, lost, after
+
+    first, lost, after = run(SelectorSettings(workers=1), work)
+    assert first.chosen is not None
+    assert lost.chosen is None and lost.complete is False
+    assert lost.reason == "the selection's worker process ended unexpectedly"
+    assert after.chosen == first.chosen
+
+
+def test_selections_run_side_by_side() -> None:
+    async def work(pool: SelectionPool) -> Any:
+        return await asyncio.gather(*(pool(ROBOTS, TASK) for _ in range(4)))
+
+    answers = run(SelectorSettings(workers=2, max_workers=4), work)
+    assert all(a.chosen == answers[0].chosen for a in answers)

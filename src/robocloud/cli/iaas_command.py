@@ -112,6 +112,22 @@ def add_iaas_arguments(parser: argparse.ArgumentParser) -> None:
         help="a robot silent this long is forgotten, no longer listed (default 600)",
     )
     parser.add_argument(
+        "--selection-budget",
+        type=float,
+        default=2.0,
+        metavar="SECONDS",
+        help="the time a selection may take; a cut search keeps the best coalitions found, "
+        "and its worker process is stopped a second later (default 2)",
+    )
+    parser.add_argument(
+        "--selection-workers",
+        type=int,
+        default=2,
+        metavar="N",
+        help="worker processes for selections, kept ready (up to twice as many when all "
+        "are busy); 0 runs them in a thread of the IaaS (default 2)",
+    )
+    parser.add_argument(
         "--time-scale",
         type=float,
         default=1.0,
@@ -175,7 +191,18 @@ def iaas_settings(args: argparse.Namespace) -> Settings:
     from robocloud.storage.opening import check_store_url
 
     check_chunk(args.cloud, "--cloud")
-    for flag in ("--offline-after", "--ack-timeout", "--forget-after", "--time-scale"):
+    if not 0 <= args.selection_workers <= 64:
+        raise InvalidInput(
+            f"--selection-workers must be 0 to 64, not {args.selection_workers}.",
+            "--selection-workers",
+        )
+    for flag in (
+        "--offline-after",
+        "--ack-timeout",
+        "--forget-after",
+        "--time-scale",
+        "--selection-budget",
+    ):
         value = getattr(args, flag.removeprefix("--").replace("-", "_"))
         if not value > 0:  # also refuses nan
             raise InvalidInput(f"{flag} must be more than 0, not {value}.", flag)
@@ -210,6 +237,8 @@ def iaas_settings(args: argparse.Namespace) -> Settings:
         time_scale=args.time_scale,
         lease_max=args.lease_max,
         origin_deadline=args.origin_deadline,
+        selection_budget=args.selection_budget,
+        selection_workers=args.selection_workers,
         overlay_security=overlay_security,
     )
     return settings

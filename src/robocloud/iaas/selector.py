@@ -71,19 +71,29 @@ def from_wire(wire: Wire) -> Robot:
 
 
 def serve(conn: Connection, memory_mb: int) -> None:
-    """A worker process: answer selections until the IaaS closes the pipe."""
+    """A worker process: answer selections until the IaaS closes the pipe.
+
+    Ctrl-C reaches the whole process group; the IaaS alone decides when its
+    workers end (it closes the pipe, or kills them), so the worker ignores it.
+    """
     import resource
+    import signal
 
     from robocloud.selection.pipeline import select
 
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     limit = memory_mb * 1024 * 1024
     resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
-    conn.send(READY)
+    try:
+        conn.send(READY)
+        _answer_until_closed(conn, memory_mb, select)
+    except (EOFError, OSError):
+        return  # the IaaS went away
+
+
+def _answer_until_closed(conn: Connection, memory_mb: int, select: Any) -> None:
     while True:
-        try:
-            message = conn.recv()
-        except (EOFError, OSError):
-            return
+        message = conn.recv()
         wires, task_json, optimizer, seed, budget_s = message
         try:
             robots = [from_wire(w) for w in wires]

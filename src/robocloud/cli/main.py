@@ -191,6 +191,16 @@ def build_parser() -> argparse.ArgumentParser:
     )
     add_robot_check_arguments(robot_check)
     robot_check.set_defaults(command=robot_check_command, command_name="robot-check")
+
+    from robocloud.gateways.vda5050.command import add_vda5050_arguments, vda5050_command
+
+    gateway = commands.add_parser(
+        "vda5050",
+        help="make the AGVs of an MQTT broker (VDA 5050 2.x) robots of a cloud",
+        description="Run the VDA 5050 gateway until interrupted.",
+    )
+    add_vda5050_arguments(gateway)
+    gateway.set_defaults(command=vda5050_command, command_name="vda5050")
     return parser
 
 

@@ -85,6 +85,7 @@ class Vehicle:
         self.running: list[tuple[str, float]] = []  # (actionId, ends at)
         self.queued: list[dict[str, Any]] = []  # HARD actions waiting their turn
         self.driving = False
+        self.dropped = False
         self.stop = threading.Event()
         self.client = mqtt.Client(
             CallbackAPIVersion.VERSION2, client_id=f"vehicle-{serial}-{time.time_ns()}"
@@ -279,8 +280,20 @@ class Vehicle:
             if state["actionId"] == action_id:
                 state["actionStatus"] = status
 
+    def drop(self) -> None:
+        """Lose the connection without a word: the broker publishes the last will."""
+        self.stop.set()
+        self.thread.join(5)
+        self.client.loop_stop()  # no reconnect
+        sock = self.client.socket()
+        if sock is not None:
+            sock.close()
+        self.dropped = True
+
     def close(self) -> None:
         """Leave in an orderly way: OFFLINE, as the specification asks."""
+        if self.dropped:
+            return
         self.stop.set()
         self.thread.join(5)
         self.client.publish(

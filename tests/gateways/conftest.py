@@ -1,4 +1,4 @@
-"""The gateway's tests run against the local Mosquitto (127.0.0.1:1883), each on topics of its own."""
+"""The gateway's tests use the local Mosquitto (127.0.0.1:1883), each on topics of its own."""
 
 from __future__ import annotations
 

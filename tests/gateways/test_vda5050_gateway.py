@@ -105,7 +105,8 @@ def test_an_agv_joins_takes_a_task_and_finishes_it(
     assert state.status == "idle" and state.position == [0.0, 0.0] and state.battery == 90.0
     assert state.kind == "test-agv" and state.speed == 10.0
     assert set(state.capabilities) == {"lift"}
-    ack = link.assign(robot, Assign(request_id="req-1", location=[20.0, 0.0], capabilities=["lift"]))
+    go = Assign(request_id="req-1", location=[20.0, 0.0], capabilities=["lift"])
+    ack = link.assign(robot, go)
     assert ack.ok, ack
     orders = [r for r in vehicle.received if r["topic"].endswith("/order")]
     assert len(orders) == 1 and orders[0]["errors"] == []
@@ -187,11 +188,11 @@ def test_bad_and_partial_messages_are_logged_and_never_stop_the_gateway(
     base = f"{interface}/v2/acme"
     partial = vda_state()
     del partial["batteryState"]
+    too_full = vda_state(batteryState={"batteryCharge": 150, "charging": False})
     sends = [
         (f"{base}/bad-1/state", b"{not json"),
         (f"{base}/bad-2/state", json.dumps(partial).encode()),
-        (f"{base}/bad-3/state", json.dumps(vda_state(batteryState={
-            "batteryCharge": 150, "charging": False})).encode()),  # fmt: skip
+        (f"{base}/bad-3/state", json.dumps(too_full).encode()),
         (f"{base}/bad-4/connection", json.dumps({"connectionState": "MAYBE"}).encode()),
         (f"{base}/bad-5/factsheet", json.dumps({"protocolFeatures": 3}).encode()),
         (f"{base}/bad$6/state", json.dumps(vda_state()).encode()),

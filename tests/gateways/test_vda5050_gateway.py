@@ -122,6 +122,8 @@ def test_an_agv_joins_takes_a_task_and_finishes_it(
     final = link.states()[robot]
     assert final.position == [20.0, 0.0] and final.status == "idle"
     assert "work" in phases
+    assert [r["errors"] for r in vehicle.received if r["errors"]] == []
+    assert any(r["topic"].endswith("/instantActions") for r in vehicle.received)  # factsheet
     assert all(topic.endswith(("/order", "/instantActions")) for topic, _ in gateway.sent)
 
 

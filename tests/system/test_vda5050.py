@@ -129,6 +129,11 @@ def test_a_request_served_by_agvs_and_simulated_robots_together_completes(fleet:
     assert len([r for r in robots if r.startswith("a-")]) == 1, robots
     orders = vda_messages(fleet, "/order")
     assert len(orders) == 2
+    # Everything the gateway sent (factsheet requests too) keeps to the official schemas.
+    every = [r for s in fleet.vehicles for r in fleet.received(s)]
+    assert any(r["message"]["actions"][0]["actionType"] == "factsheetRequest"
+               for r in every if r["topic"].endswith("/instantActions"))  # fmt: skip
+    assert [r["errors"] for r in every if r["errors"]] == []
     for order in orders:
         assert order["errors"] == [], order["errors"]
         assert order["message"]["orderId"].startswith(rid)

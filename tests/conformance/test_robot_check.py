@@ -23,7 +23,7 @@ import pytest
 import zenoh
 
 from robocloud.conformance import RULES, Result, RobotCheck
-from robocloud.fleet import open_client
+from robocloud.fleet import open_client, open_router
 from robocloud.sim.fleet import FleetSimulator
 from robocloud.sim.roster import cloud_robots
 
@@ -114,23 +114,21 @@ def test_the_example_robot_passes_the_command(tmp_path: Path) -> None:
     assert all(mark == "pass" for _, mark in table)
 
 
-def test_the_simulator_passes() -> None:
+def test_the_simulator_passes_with_the_kit_as_a_client_of_a_router() -> None:
+    """--client: the kit joins a router already there (here a bare one) instead of being it."""
     endpoint = free_endpoint()
+    router = open_router([endpoint])
     fleet = cloud_robots("cloud-a", 20, seed=0)
     robot = next(r for r in fleet if r["status"] == "idle" and r["battery"] > 60)
-    results: dict[str, Result] = {}
-    checking = threading.Thread(
-        target=lambda: results.update(check_in_process(endpoint, robot["id"]))
-    )
-    checking.start()
     session = open_client([endpoint], timeout=5.0)
     try:
         with FleetSimulator("cloud-a", fleet, session, speedup=20.0):
-            checking.join(240)
+            results = check_in_process(endpoint, robot["id"], client=True)
     finally:
         session.close()  # type: ignore[no-untyped-call]
+        router.close()  # type: ignore[no-untyped-call]
     failed = {r.rule: r.sentence for r in results.values() if not r.passed}
-    assert results and not failed, failed
+    assert len(results) == len(RULES) and not failed, failed
 
 
 class LateRobot(example.Robot):  # type: ignore[misc,name-defined]

@@ -10,6 +10,7 @@ capabilities' time; the battery stays full (a real robot reports its own).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import threading
@@ -18,7 +19,9 @@ from typing import Any
 
 import zenoh
 
-CAPABILITIES = {"grabber": {"kind": "actuating", "time": 1.0, "cost": 1.0}}
+CAPABILITIES: dict[str, dict[str, Any]] = {
+    "grabber": {"kind": "actuating", "time": 1.0, "cost": 1.0}
+}
 SPEED = 2.0  # m/s
 
 
@@ -90,7 +93,7 @@ class Robot:
             self.last_task = {**self.task, "phase": "done", "progress": 1.0}
             self.task = None
             return True
-        changed = phase != self.task["phase"]
+        changed: bool = phase != self.task["phase"]
         self.task.update(phase=phase, progress=min(1.0, elapsed / total))
         return changed
 
@@ -126,11 +129,8 @@ def main() -> None:
     config.insert_json5("connect/endpoints", json.dumps([args.connect]))
     config.insert_json5("connect/timeout_ms", "-1")  # start before the IaaS: wait for it
     config.insert_json5("connect/retry", "{period_init_ms: 500, period_max_ms: 1000}")
-    with zenoh.open(config) as session:
-        try:
-            Robot(session, args.cloud, args.id, args.x).run(threading.Event())
-        except KeyboardInterrupt:
-            pass
+    with zenoh.open(config) as session, contextlib.suppress(KeyboardInterrupt):  # Ctrl-C stops
+        Robot(session, args.cloud, args.id, args.x).run(threading.Event())
 
 
 if __name__ == "__main__":

@@ -27,6 +27,12 @@ PREFIX = "/protocol"
 STATE_EVERY = 1.0  # seconds: a robot publishes its state at least this often
 
 
+class SchemaResponse(JSONResponse):
+    """A JSON Schema document, with its own media type (also in the OpenAPI)."""
+
+    media_type = "application/schema+json"
+
+
 class ProtocolKeys(BaseModel):
     state: str = Field(description="where each robot publishes its state")
     cmd: str = Field(description="where each robot answers commands (a Zenoh queryable)")
@@ -80,8 +86,8 @@ def install_protocol(app: FastAPI) -> None:
 
 
 def _serve_schema(app: FastAPI, name: str, document: dict[str, object]) -> None:
-    async def schema() -> JSONResponse:
-        return JSONResponse(document, media_type="application/schema+json")
+    async def schema() -> SchemaResponse:
+        return SchemaResponse(document)
 
     app.add_api_route(
         f"{PREFIX}/{file_name(name)}",
@@ -90,5 +96,6 @@ def _serve_schema(app: FastAPI, name: str, document: dict[str, object]) -> None:
         tags=["robots"],
         operation_id=f"protocol_{name}_schema",
         summary=f"The JSON Schema of the robot protocol's {name} message",
-        response_class=JSONResponse,
+        response_class=SchemaResponse,
+        responses={200: {"description": "the JSON Schema (draft 2020-12)"}},
     )

@@ -46,7 +46,7 @@ from robocloud.fleet.messages import Ack, Assign, Cancel, State
 from robocloud.gateways.vda5050 import messages as vda
 from robocloud.gateways.vda5050.agv import Agv, BadMessage
 from robocloud.gateways.vda5050.capabilities import GatewayCapabilities
-from robocloud.gateways.vda5050.zenoh_side import ZenohRobots
+from robocloud.gateways.vda5050.zenoh_side import CommandHandler, RobotSide
 
 log = logging.getLogger(__name__)
 
@@ -79,11 +79,15 @@ def robot_id(name: vda.AgvName) -> str | None:
 
 
 class Vda5050Gateway:
-    """The AGVs on ``mqtt_host:mqtt_port`` as robots of ``robots.cloud``."""
+    """The AGVs on ``mqtt_host:mqtt_port`` as robots of a cloud.
+
+    ``robots`` makes the Zenoh side from the gateway's command handler (a
+    ``ZenohRobots`` on a client session, in ``command.run_gateway``).
+    """
 
     def __init__(
         self,
-        robots: Callable[[Callable[[str, Assign | Cancel], Ack]], ZenohRobots],
+        robots: Callable[[CommandHandler], RobotSide],
         mqtt_host: str,
         mqtt_port: int,
         capabilities: GatewayCapabilities,

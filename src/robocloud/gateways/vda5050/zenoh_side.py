@@ -11,6 +11,7 @@ import contextlib
 import logging
 import threading
 from collections.abc import Callable
+from typing import Protocol
 
 import pydantic
 import zenoh
@@ -23,6 +24,23 @@ log = logging.getLogger(__name__)
 
 CommandHandler = Callable[[str, Assign | Cancel], Ack]
 _JSON = zenoh.Encoding.APPLICATION_JSON
+
+
+class RobotSide(Protocol):
+    """What the gateway needs of the Zenoh side; ``ZenohRobots`` is the one there is."""
+
+    @property
+    def cloud(self) -> str: ...
+
+    def has(self, robot: str) -> bool: ...
+
+    def add(self, robot: str) -> None: ...
+
+    def remove(self, robot: str) -> None: ...
+
+    def publish(self, state: State) -> None: ...
+
+    def close(self) -> None: ...
 
 
 class ZenohRobots:

@@ -207,3 +207,16 @@ def test_the_capabilities_file_is_checked(tmp_path: Path) -> None:
         load_capabilities(str(bad))
     with pytest.raises(NotFound, match="no such file"):
         load_capabilities(str(tmp_path / "none.json"))
+
+
+def test_a_failed_task_whose_order_still_runs_is_still_cancelled() -> None:
+    agv = agv_with()
+    agv.take(Assign(request_id="req-x", location=[30.0, 5.0], capabilities=["lift"]), CAPS, 1.0)
+    end = {"nodeId": "req-x.1-end", "sequenceId": 2, "released": True}
+    agv.on_state(vda.VdaState.model_validate(vda_state(orderId="req-x.1", nodeStates=[end], errors=[
+        {"errorType": "bumper", "errorLevel": "FATAL"}])), 2.0)  # fmt: skip
+    assert agv.job is None and agv.failure == "the AGV reports bumper (fatal)"
+    assert agv.still_running("req-x") == "req-x.1"  # it holds the order: cancelOrder is due
+    assert agv.still_running("req-y") is None
+    agv.on_state(vda.VdaState.model_validate(vda_state(orderId="req-x.1")), 3.0)
+    assert agv.still_running("req-x") is None  # nothing left of it

@@ -101,6 +101,7 @@ class Agv:
     finished: TaskProgress | None = None
     finished_until: float = -math.inf
     failure: str | None = None  # why the last job failed, for the log
+    finished_order: str | None = None  # the order of ``finished``
     seq: int = 0
     dirty: bool = False  # a change to publish now
     published_at: float = -math.inf
@@ -218,6 +219,7 @@ class Agv:
             capabilities=list(job.capabilities),
         )
         self.finished_until = now + LINGER
+        self.finished_order = job.order_id
         self.job = None
         self.failure = why
         self.dirty = True
@@ -301,6 +303,20 @@ class Agv:
         if job is not None:
             self.dirty = True
         return job
+
+    def still_running(self, request_id: str) -> str | None:
+        """The order of a failed task of ``request_id`` the AGV still runs, if any.
+
+        A task fails on what the AGV reports (an action failed, a fault); the
+        AGV may hold the order all the same, so a cancel must still reach it.
+        """
+        vda, finished = self.vda, self.finished
+        if vda is None or finished is None or finished.request_id != request_id:
+            return None
+        if vda.orderId != self.finished_order:
+            return None
+        under_way = any(a.actionStatus in UNDER_WAY for a in vda.actionStates)
+        return self.finished_order if vda.nodeStates or vda.edgeStates or under_way else None
 
     # -- the robot it is ---------------------------------------------------------------
 

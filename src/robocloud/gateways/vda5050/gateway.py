@@ -288,10 +288,11 @@ class Vda5050Gateway:
                 if refusal is not None:
                     return Ack.refuse(robot, rid, refusal)
                 job = agv.cancel()
-                if job is None:
+                order_id = job.order_id if job is not None else agv.still_running(rid)
+                if order_id is None:
                     return Ack(ok=True, robot=robot, request_id=rid)
                 header = self._headers.header(agv.name, "instantActions", self.wall())
-                message = vda.cancel_order(header, f"{job.order_id}-cancel")
+                message = vda.cancel_order(header, f"{order_id}-cancel-{secrets.token_hex(2)}")
                 name = agv.name
             else:
                 refusal = agv.refuse(command, self.capabilities, now)
@@ -307,11 +308,12 @@ class Vda5050Gateway:
                     header, job.order_id, job.start, job.target, agv.map_id, actions
                 )
                 name = agv.name
-        what = "instantActions" if isinstance(command, Cancel) else "order"
-        self._send(name, what, message)
-        log.info("%s %s: sent %s %s", robot, command.type, what, job.order_id)
         if isinstance(command, Cancel):
+            self._send(name, "instantActions", message)
+            log.info("%s cancel: sent cancelOrder for %s", robot, order_id)
             return Ack(ok=True, robot=robot, request_id=rid)
+        self._send(name, "order", message)
+        log.info("%s assign: sent order %s", robot, job.order_id)
         with self._changed:
             self._changed.wait_for(lambda: job.accepted or agv.job is not job, ACCEPT_WAIT)
             if agv.job is not job:

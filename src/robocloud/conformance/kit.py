@@ -420,7 +420,17 @@ class RobotCheck:
             f"{max(0.0, heard.at - sent_at):.2f} s after it was sent.",
         )
 
+    def _still_on(self, rid: str, rule: str) -> None:
+        """The robot still works on ``rid``: a rule that needs it busy can be checked."""
+        latest = self._latest()
+        if latest is None or not working_on(latest, rid):
+            raise Failed(
+                f"{rid} was over before the kit could check {rule}; choose a slower capability "
+                "with --capability."
+            )
+
     def _repeat(self, rid: str, location: list[float], capability: str) -> str:
+        self._still_on(rid, "a repeated assign")
         sent = self._ask(Assign(request_id=rid, location=location, capabilities=[capability]))
         assert sent.ack is not None
         if not sent.ack.ok:
@@ -431,6 +441,7 @@ class RobotCheck:
         return "acknowledged ok again."
 
     def _refuse_busy(self, rid: str, location: list[float], capability: str) -> str:
+        self._still_on(rid, "a refusal while busy")
         other = self._request()
         sent = self._ask(Assign(request_id=other, location=location, capabilities=[capability]))
         assert sent.ack is not None

@@ -32,7 +32,7 @@ check: lint
 	$(BIN)/python -m pytest -q -m "$(QUICK)"
 
 lint: $(STAMP)
-	$(BIN)/ruff check src tests benchmarks
+	$(BIN)/ruff check src tests benchmarks examples
 	$(BIN)/mypy
 
 bench: $(STAMP)

@@ -180,3 +180,47 @@ def test_liveliness_wait_and_session_errors(
         open_client(["nonsense"])
     with pytest.raises(InvalidInput):
         open_router([])
+
+
+def test_a_refused_state_is_answered_on_the_robots_error_key_and_logged(
+    network: tuple[zenoh.Session, zenoh.Session], caplog: pytest.LogCaptureFixture
+) -> None:
+    router, client = network
+    answers: list[dict[str, object]] = []
+    lock = threading.Lock()
+
+    def heard(sample: zenoh.Sample) -> None:
+        with lock:
+            answers.append({"key": str(sample.key_expr), **json.loads(sample.payload.to_bytes())})
+
+    listening = client.declare_subscriber("robocloud/cloud-a/robots/*/error", heard)
+    with ZenohRobotLink(router, "cloud-a") as link:
+        time.sleep(0.1)
+        key = keys.state_key("cloud-a", "a-0100")
+        missing = json.loads(state("a-0100"))
+        del missing["kind"]
+        client.put(key, json.dumps(missing))
+        assert wait_until(lambda: len(answers) == 1)
+        # Repeated within the second: logged once, answered once.
+        for battery in (150.0, 0.5):
+            client.put(key, state("a-0100", seq=2, battery=battery))
+        client.put(keys.state_key("cloud-a", "a-0101"), state("a-0102"))
+        client.put(keys.state_key("cloud-a", "a-0103"), b"x" * 70_000)
+        assert wait_until(lambda: len(answers) == 3)
+        time.sleep(0.2)
+        assert "a-0100" in link.states()  # the valid one (battery 0.5 %) was taken
+    listening.undeclare()  # type: ignore[no-untyped-call]
+    by_key = {a["key"]: a for a in answers}
+    first = by_key["robocloud/cloud-a/robots/a-0100/error"]
+    assert first["field"] == "kind"
+    assert first["error"] == "kind is missing."
+    assert first["robot"] == "a-0100"
+    assert first["protocol"] == "1.0"
+    mismatch = by_key["robocloud/cloud-a/robots/a-0101/error"]
+    assert mismatch["field"] == "id"
+    assert "names robot a-0102 but came on the key of a-0101" in str(mismatch["error"])
+    assert "70000 bytes" in str(by_key["robocloud/cloud-a/robots/a-0103/error"]["error"])
+    logged = [r.getMessage() for r in caplog.records if "refused a state" in r.getMessage()]
+    assert any("a-0100/state (field kind): kind is missing." in line for line in logged)
+    assert any("(field battery): battery: input should be less than or equal to 100" in line
+               for line in logged), logged

@@ -7,6 +7,8 @@
     robocloud iaas --cloud NAME ...       (robocloud.cli.iaas_command)
     robocloud sim --cloud NAME ...        (robocloud.sim.command)
     robocloud wildfire --iaas URL ...     (robocloud.wildfire.command)
+    robocloud robot-check --connect ENDPOINT --cloud NAME --robot ID   (robocloud.cli.robot_check)
+    robocloud vda5050 --cloud NAME --connect ENDPOINT --mqtt HOST:PORT (robocloud.gateways.vda5050)
 
 ``select`` reads docs/model.md's input (a file, or ``-`` for stdin) and
 prints its output as one JSON document on stdout. ``scenario wildfire``
@@ -179,6 +181,26 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_wildfire_arguments(wildfire)
     wildfire.set_defaults(command=_wildfire_command, command_name="wildfire")
+
+    from robocloud.cli.robot_check import add_robot_check_arguments, robot_check_command
+
+    robot_check = commands.add_parser(
+        "robot-check",
+        help="check a robot against the robot protocol (a stand-in IaaS)",
+        description="Drive one robot through every rule of docs/protocol.md; exit 0 if all pass.",
+    )
+    add_robot_check_arguments(robot_check)
+    robot_check.set_defaults(command=robot_check_command, command_name="robot-check")
+
+    from robocloud.gateways.vda5050.command import add_vda5050_arguments, vda5050_command
+
+    gateway = commands.add_parser(
+        "vda5050",
+        help="make the AGVs of an MQTT broker (VDA 5050 2.x) robots of a cloud",
+        description="Run the VDA 5050 gateway until interrupted.",
+    )
+    add_vda5050_arguments(gateway)
+    gateway.set_defaults(command=vda5050_command, command_name="vda5050")
     return parser
 
 

@@ -4,6 +4,7 @@
 
     robocloud/<cloud>/robots/<id>/state   each robot publishes its State (JSON)
     robocloud/<cloud>/robots/<id>/cmd     the IaaS queries it with a Command; the reply is an Ack
+    robocloud/<cloud>/robots/<id>/error   the IaaS publishes a StateError for a state it refused
     robocloud/<cloud>/sim/<pid>           liveliness token of a running fleet simulator
     robocloud/<cloud>/sim/control         queryable of the simulator for fault injection
 
@@ -43,6 +44,10 @@ def cmd_key(cloud: str, robot_id: str) -> str:
     return f"{robots_prefix(cloud)}/{check_chunk(robot_id, 'robot')}/cmd"
 
 
+def error_key(cloud: str, robot_id: str) -> str:
+    return f"{robots_prefix(cloud)}/{check_chunk(robot_id, 'robot')}/error"
+
+
 def all_states(cloud: str) -> str:
     """Every robot's state key of ``cloud``."""
     return f"{robots_prefix(cloud)}/*/state"
@@ -53,7 +58,7 @@ def all_cmds(cloud: str) -> str:
 
 
 def robot_of(key: str) -> str | None:
-    """The robot id in a ``.../robots/<id>/state`` or ``.../cmd`` key, None for other keys."""
+    """The robot id in a ``.../robots/<id>/state``, ``cmd`` or ``error`` key; None for others."""
     parts = key.split("/")
     if len(parts) != 5 or parts[0] != ROOT or parts[2] != "robots":
         return None

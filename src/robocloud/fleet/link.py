@@ -25,6 +25,7 @@ from robocloud.domain import Robot
 from robocloud.errors import Unavailable
 from robocloud.fleet import keys
 from robocloud.fleet.messages import Ack, Assign, Cancel, State
+from robocloud.fleet.state_errors import MAX_STATE_BYTES, StateErrors
 
 logger = logging.getLogger(__name__)
 
@@ -205,7 +206,8 @@ class ZenohRobotLink:
 
     A robot silent for more than ``offline_after`` seconds is reported
     ``offline`` by ``robots()``; a command unanswered within
-    ``command_timeout`` seconds is acknowledged not ok.
+    ``command_timeout`` seconds is acknowledged not ok. A state that does not
+    validate is answered on the robot's error key (``StateErrors``).
     """
 
     def __init__(
@@ -222,7 +224,7 @@ class ZenohRobotLink:
         self._cloud = keys.check_chunk(cloud, "cloud")
         self._timeout = command_timeout
         self._latest = LatestStates(cloud, offline_after, clock, forget_after, max_fleet)
-        self._warned: set[str] = set()
+        self._errors = StateErrors(session, self._cloud)
         self._subscriber = session.declare_subscriber(keys.all_states(cloud), self._on_sample)
 
     @property
@@ -297,20 +299,16 @@ class ZenohRobotLink:
         if sample.kind != zenoh.SampleKind.PUT:
             return
         key = str(sample.key_expr)
+        payload = sample.payload.to_bytes()
+        if len(payload) > MAX_STATE_BYTES:
+            self._errors.too_large(key, len(payload))
+            return
         try:
-            state = State.model_validate_json(sample.payload.to_bytes())
+            state = State.model_validate_json(payload)
         except pydantic.ValidationError as error:
-            self._warn_once(key, f"an invalid state on {key}: {error.errors()[0]['msg']}")
+            self._errors.invalid(key, error)
             return
         if state.cloud != self._cloud or state.id != keys.robot_of(key):
-            self._warn_once(key, f"a state for {state.cloud}/{state.id} on {key}")
+            self._errors.mismatch(key, state)
             return
         self._latest.accept(state)
-
-    def _warn_once(self, key: str, message: str) -> None:
-        # A misconfigured robot repeats itself every second; say it once.
-        if key not in self._warned:
-            if len(self._warned) >= 1000:  # bounded, whatever keys clients use
-                self._warned.clear()
-            self._warned.add(key)
-            logger.warning("ignoring %s", message)

@@ -1,5 +1,9 @@
 """The JSON messages between an IaaS and its robots, enough for a real robot to implement.
 
+These models are the source of truth of the robot protocol (version
+``PROTOCOL_VERSION``): ``robocloud.fleet.schemas`` generates the JSON Schemas
+of docs/protocol/ from them, and docs/protocol.md explains them.
+
 All messages are UTF-8 JSON objects on the keys of ``robocloud.fleet.keys``.
 Fields a receiver does not know are ignored, so either side may add some.
 
@@ -65,6 +69,11 @@ from robocloud.domain import Capability, Robot, RobotStatus
 from robocloud.domain.robot import Finite, Name, NonNegative, Position, Speed
 from robocloud.domain.task import Execution
 
+# The robot protocol's version, MAJOR.MINOR. A new MINOR only adds optional
+# fields or values a receiver may ignore; a new MAJOR changes the meaning of a
+# message. It is in each schema's $id and served by the IaaS at /protocol.
+PROTOCOL_VERSION = "1.0"
+
 Phase = Literal["travel", "work", "done", "failed"]
 PHASES: tuple[str, ...] = ("travel", "work", "done", "failed")
 FINISHED_PHASES: frozenset[str] = frozenset({"done", "failed"})
@@ -77,9 +86,14 @@ class TaskProgress(BaseModel):
 
     model_config = _WIRE
 
-    request_id: Name
-    phase: Phase
-    progress: Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)]
+    request_id: Name = Field(description="the request of the assign command")
+    phase: Phase = Field(
+        description="travel (driving to the location), work (using the capabilities there), "
+        "done (finished, idle at the location) or failed (it cannot finish; status offline)"
+    )
+    progress: Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)] = Field(
+        description="0 to 1 over the whole task (travel and work), by time"
+    )
     capabilities: list[Name] = Field(description="the capabilities the robot uses for it")
 
 
@@ -88,22 +102,37 @@ class State(BaseModel):
 
     model_config = _WIRE
 
-    id: Name
-    cloud: Name
-    kind: Name = Field(description='the robot type, e.g. "tribot" or "base"')
-    position: Position = Field(description="[x, y] in metres")
-    speed: Speed = Field(description="m/s")
-    battery: Annotated[float, Field(ge=0.0, le=100.0, allow_inf_nan=False)]
-    status: RobotStatus
-    travel_cost_per_m: NonNegative
-    capabilities: dict[Name, Capability]
-    task: TaskProgress | None = None
+    id: Name = Field(description="the robot's id, as in its keys; unique in the federation")
+    cloud: Name = Field(description="the robot's home cloud, as in its keys")
+    kind: Name = Field(description='the robot type, free text, e.g. "tribot" or "base"')
+    position: Position = Field(
+        description="[x, y] in metres on the cloud's plane: one fixed origin and axes for "
+        "every robot and task of the federation"
+    )
+    speed: Speed = Field(description="travel speed, m/s")
+    battery: Annotated[float, Field(ge=0.0, le=100.0, allow_inf_nan=False)] = Field(
+        description="charge left, a percent from 0 to 100 (not a fraction: 0.9 means 0.9 %)"
+    )
+    status: RobotStatus = Field(
+        description="idle (free for a task), reserved (kept for someone else), busy (working), "
+        "charging, or offline (cannot work)"
+    )
+    travel_cost_per_m: NonNegative = Field(description="what a metre of travel costs")
+    capabilities: dict[Name, Capability] = Field(
+        description="name -> {kind: sensing or actuating, time: seconds, cost}"
+    )
+    task: TaskProgress | None = Field(
+        None, description="what the robot does for a request now, null when nothing"
+    )
     last_task: TaskProgress | None = Field(
         None,
         description="the robot's last finished task (phase done or failed), "
         "kept until it is given another",
     )
-    seq: Annotated[int, Field(ge=0)]
+    seq: Annotated[int, Field(ge=0)] = Field(
+        description="increases with every state the robot sends; may start again at 0 after "
+        "a restart"
+    )
     sent_at: Finite = Field(description="unix time, seconds, when the robot sent it")
 
     def to_robot(self, status: RobotStatus | None = None) -> Robot:
@@ -127,10 +156,16 @@ class Assign(BaseModel):
     model_config = _WIRE
 
     type: Literal["assign"] = "assign"
-    request_id: Name
-    location: Position = Field(description="[x, y] in metres")
-    capabilities: Annotated[list[Name], Field(min_length=1)]
-    execution: Execution = "parallel"
+    request_id: Name = Field(description="the request the task is for")
+    location: Position = Field(description="[x, y] in metres, in the frame of the states")
+    capabilities: Annotated[list[Name], Field(min_length=1)] = Field(
+        description="the robot's capabilities to use there"
+    )
+    execution: Execution = Field(
+        "parallel",
+        description="parallel: work for the longest time of the capabilities; sequential: "
+        "for the sum of their times",
+    )
 
     def work_time(self, capabilities: Mapping[str, Capability]) -> float:
         """Seconds of work at the location for a robot with ``capabilities`` (MODEL.md exec_i).
@@ -150,7 +185,7 @@ class Cancel(BaseModel):
     model_config = _WIRE
 
     type: Literal["cancel"] = "cancel"
-    request_id: Name
+    request_id: Name = Field(description="the request to stop working on")
 
 
 Command = Annotated[Assign | Cancel, Field(discriminator="type")]
@@ -162,11 +197,28 @@ class Ack(BaseModel):
 
     model_config = _WIRE
 
-    ok: bool
-    robot: Name
-    request_id: Name | None = None
+    ok: bool = Field(description="whether the robot does what the command asks")
+    robot: Name = Field(description="the robot's id")
+    request_id: Name | None = Field(None, description="the command's request_id")
     error: str | None = Field(default=None, description="a sentence when ok is false")
 
     @classmethod
     def refuse(cls, robot: str, request_id: str | None, error: str) -> Ack:
         return cls(ok=False, robot=robot, request_id=request_id, error=error)
+
+
+class StateError(BaseModel):
+    """The IaaS's answer to a state it could not accept, on the robot's error key.
+
+    Published on ``robocloud/<cloud>/robots/<id>/error`` (at most once a second
+    per robot); the state itself is dropped. ``field`` names the first field at
+    fault the way the sentence does (``battery``, ``task.progress``).
+    """
+
+    model_config = _WIRE
+
+    robot: Name = Field(description="the robot id of the key the state came on")
+    field: str = Field(description="the first field at fault, e.g. battery or task.progress")
+    error: str = Field(description="one sentence naming the field and what is wrong with it")
+    protocol: str = Field(PROTOCOL_VERSION, description="the protocol version of the IaaS")
+    sent_at: Finite = Field(description="unix time, seconds, when the IaaS sent it")

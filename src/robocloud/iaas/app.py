@@ -52,6 +52,7 @@ from robocloud.iaas.models import (
     RobotPublic,
 )
 from robocloud.iaas.presenters import remote_robot_public, request_public, robot_public
+from robocloud.iaas.protocol_routes import install_protocol
 from robocloud.iaas.service import REQUEST_ID, RequestService
 from robocloud.storage import RequestRecord, RequestStore, open_store
 
@@ -171,6 +172,7 @@ def create_app(
     app.state.routes = [r for r in routes.routes if isinstance(r, APIRoute)]
     app.openapi = lambda: _openapi(app)  # type: ignore[method-assign]
     install_docs(app)
+    install_protocol(app)
     return app
 
 

@@ -1,0 +1,111 @@
+"""The gateway's robots on Zenoh: for each AGV, a command queryable and a state publisher.
+
+The same keys as any robot (docs/protocol.md), on one Zenoh client session. It
+is all the gateway knows of Zenoh, so a later fleet-gateway design (one
+wildcard queryable, states in batches) replaces this class alone.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import threading
+from collections.abc import Callable
+from typing import Protocol
+
+import pydantic
+import zenoh
+
+from robocloud.errors import describe_validation_errors
+from robocloud.fleet import keys
+from robocloud.fleet.messages import COMMAND, Ack, Assign, Cancel, State
+
+log = logging.getLogger(__name__)
+
+CommandHandler = Callable[[str, Assign | Cancel], Ack]
+_JSON = zenoh.Encoding.APPLICATION_JSON
+
+
+class RobotSide(Protocol):
+    """What the gateway needs of the Zenoh side; ``ZenohRobots`` is the one there is."""
+
+    @property
+    def cloud(self) -> str: ...
+
+    def has(self, robot: str) -> bool: ...
+
+    def add(self, robot: str) -> None: ...
+
+    def remove(self, robot: str) -> None: ...
+
+    def publish(self, state: State) -> None: ...
+
+    def close(self) -> None: ...
+
+
+class ZenohRobots:
+    """Robots of ``cloud`` on ``session``; each command goes to ``on_command(robot, command)``."""
+
+    def __init__(self, session: zenoh.Session, cloud: str, on_command: CommandHandler) -> None:
+        self._session = session
+        self._cloud = keys.check_chunk(cloud, "cloud")
+        self._on_command = on_command
+        self._lock = threading.Lock()
+        self._robots: dict[str, tuple[zenoh.Queryable[None], zenoh.Publisher]] = {}
+
+    @property
+    def cloud(self) -> str:
+        return self._cloud
+
+    def has(self, robot: str) -> bool:
+        with self._lock:
+            return robot in self._robots
+
+    def add(self, robot: str) -> None:
+        """Declare the robot: its cmd queryable, then its state publisher."""
+        with self._lock:
+            if robot in self._robots:
+                return
+            queryable = self._session.declare_queryable(
+                keys.cmd_key(self._cloud, robot), lambda query: self._answer(robot, query)
+            )
+            publisher = self._session.declare_publisher(
+                keys.state_key(self._cloud, robot), encoding=_JSON
+            )
+            self._robots[robot] = (queryable, publisher)
+
+    def remove(self, robot: str) -> None:
+        with self._lock:
+            declared = self._robots.pop(robot, None)
+        if declared is not None:
+            for entity in declared:
+                with contextlib.suppress(zenoh.ZError):
+                    entity.undeclare()  # type: ignore[no-untyped-call]
+
+    def publish(self, state: State) -> None:
+        with self._lock:
+            declared = self._robots.get(state.id)
+        if declared is not None:
+            declared[1].put(state.model_dump_json())
+
+    def close(self) -> None:
+        with self._lock:
+            robots = list(self._robots)
+        for robot in robots:
+            self.remove(robot)
+
+    def _answer(self, robot: str, query: zenoh.Query) -> None:
+        with query:
+            payload = query.payload.to_bytes() if query.payload is not None else b""
+            try:
+                command = COMMAND.validate_json(payload)
+            except pydantic.ValidationError as error:
+                sentence = describe_validation_errors(error.errors(), prefix="command").message
+                ack = Ack.refuse(robot, None, sentence)
+            else:
+                try:
+                    ack = self._on_command(robot, command)
+                except Exception as error:  # the gateway must answer, whatever happened
+                    log.exception("the command %s for %s failed", command.type, robot)
+                    ack = Ack.refuse(robot, command.request_id, f"the gateway failed: {error}")
+            query.reply(keys.cmd_key(self._cloud, robot), ack.model_dump_json(), encoding=_JSON)

@@ -1,0 +1,198 @@
+"""robocloud robot-check against real robots on loopback Zenoh.
+
+It passes the example robot (examples/example_robot.py, as a process, through
+the real command) and the fleet simulator, and fails, naming the rule, a
+robot that acks late, one whose state lacks a required field and one that
+ignores cancel.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from types import ModuleType
+from typing import Any
+
+import pytest
+import zenoh
+
+from robocloud.conformance import RULES, Result, RobotCheck
+from robocloud.fleet import open_client, open_router
+from robocloud.sim.fleet import FleetSimulator
+from robocloud.sim.roster import cloud_robots
+
+pytestmark = pytest.mark.slow
+
+ROOT = Path(__file__).parents[2]
+EXAMPLE = ROOT / "examples" / "example_robot.py"
+
+
+def free_endpoint() -> str:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return f"tcp/127.0.0.1:{sock.getsockname()[1]}"
+
+
+def load_example() -> ModuleType:
+    spec = importlib.util.spec_from_file_location("example_robot", EXAMPLE)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+example = load_example()
+
+
+def by_rule(results: list[Result]) -> dict[str, Result]:
+    return {r.rule: r for r in results}
+
+
+def client_session(endpoint: str) -> zenoh.Session:
+    config = zenoh.Config()
+    config.insert_json5("mode", '"client"')
+    config.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    config.insert_json5("connect/timeout_ms", "-1")
+    config.insert_json5("connect/retry", "{period_init_ms: 200, period_max_ms: 500}")
+    config.insert_json5("scouting/multicast/enabled", "false")
+    return zenoh.open(config)
+
+
+def check_in_process(endpoint: str, robot: str, **options: Any) -> dict[str, Result]:
+    """Start the kit (its router) first, then hand it the robot started by the caller."""
+    return by_rule(RobotCheck(endpoint, "cloud-a", robot, join_timeout=10.0, **options).run())
+
+
+def run_with_robot(robot_class: type, **options: Any) -> dict[str, Result]:
+    """The kit against one in-process robot of ``robot_class`` (the example robot or a variant)."""
+    endpoint = free_endpoint()
+    results: dict[str, Result] = {}
+    checking = threading.Thread(
+        target=lambda: results.update(check_in_process(endpoint, "ex-1", **options))
+    )
+    checking.start()
+    session = client_session(endpoint)
+    stop = threading.Event()
+    robot = robot_class(session, "cloud-a", "ex-1")
+    running = threading.Thread(target=robot.run, args=(stop,), daemon=True)
+    running.start()
+    checking.join(240)
+    stop.set()
+    running.join(5)
+    session.close()
+    assert not checking.is_alive(), "the kit did not finish"
+    return results
+
+
+def test_the_example_robot_passes_the_command(tmp_path: Path) -> None:
+    endpoint = free_endpoint()
+    robot = subprocess.Popen(
+        [sys.executable, str(EXAMPLE), "--connect", endpoint, "--cloud", "cloud-a", "--id", "ex-1"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+    )
+    try:
+        check = subprocess.run(
+            [sys.executable, "-m", "robocloud.cli.main", "robot-check", "--connect", endpoint,
+             "--cloud", "cloud-a", "--robot", "ex-1"],
+            capture_output=True, text=True, timeout=180,
+        )  # fmt: skip
+    finally:
+        robot.terminate()
+        robot.wait(10)
+    lines = check.stdout.splitlines()
+    assert check.returncode == 0, check.stdout + check.stderr
+    assert lines[-1] == "14 passed, 0 failed"
+    table = [line.split()[:2] for line in lines[1:-1]]
+    assert [rule for rule, _ in table] == list(RULES)
+    assert all(mark == "pass" for _, mark in table)
+
+
+def test_the_simulator_passes_with_the_kit_as_a_client_of_a_router() -> None:
+    """--client: the kit joins a router already there (here a bare one) instead of being it."""
+    endpoint = free_endpoint()
+    router = open_router([endpoint])
+    fleet = cloud_robots("cloud-a", 20, seed=0)
+    robot = next(r for r in fleet if r["status"] == "idle" and r["battery"] > 60)
+    session = open_client([endpoint], timeout=5.0)
+    try:
+        with FleetSimulator("cloud-a", fleet, session, speedup=20.0):
+            results = check_in_process(endpoint, robot["id"], client=True)
+    finally:
+        session.close()  # type: ignore[no-untyped-call]
+        router.close()  # type: ignore[no-untyped-call]
+    failed = {r.rule: r.sentence for r in results.values() if not r.passed}
+    assert len(results) == len(RULES) and not failed, failed
+
+
+class LateRobot(example.Robot):  # type: ignore[misc,name-defined]
+    """Takes every assign, but answers it 2.5 s late."""
+
+    def on_command(self, query: zenoh.Query) -> None:
+        if b'"assign"' in query.payload.to_bytes():
+            time.sleep(2.5)
+        super().on_command(query)
+
+
+class NoKindRobot(example.Robot):  # type: ignore[misc,name-defined]
+    """Leaves the required field kind out of its states."""
+
+    heard_errors: list[dict[str, Any]]
+
+    def state(self) -> dict[str, Any]:
+        state: dict[str, Any] = super().state()
+        del state["kind"]
+        return state
+
+    def on_error(self, sample: zenoh.Sample) -> None:
+        type(self).heard_errors.append(json.loads(sample.payload.to_bytes()))
+
+
+class DeafRobot(example.Robot):  # type: ignore[misc,name-defined]
+    """Acknowledges a cancel and goes on with its task."""
+
+    def obey(self, command: dict[str, Any]) -> tuple[bool, str | None]:
+        if command.get("type") == "cancel":
+            return True, None
+        ok, error = super().obey(command)
+        return ok, error
+
+
+def test_a_robot_that_acks_late_fails_the_late_ack_rule() -> None:
+    results = run_with_robot(LateRobot, outage=0.5)
+    late = results["late-ack"]
+    assert not late.passed
+    assert "answered the assign of check-" in late.sentence
+    assert "after 2.5 s" in late.sentence
+    assert "counts a later answer as a refusal and sends a cancel" in late.sentence
+    assert not results["assign"].passed
+    assert results["state-schema"].passed
+
+
+def test_a_robot_that_omits_a_required_field_fails_the_state_rule_named_by_field() -> None:
+    NoKindRobot.heard_errors = []
+    results = run_with_robot(NoKindRobot, outage=0.5)
+    schema = results["state-schema"]
+    assert not schema.passed
+    assert schema.sentence.endswith("the first: kind is missing.")
+    assert not results["join"].passed
+    assert "none of them a valid state" in results["join"].sentence
+    # The kit answers on the robot's error key, as the IaaS does.
+    assert NoKindRobot.heard_errors
+    assert NoKindRobot.heard_errors[0]["field"] == "kind"
+
+
+def test_a_robot_that_ignores_cancel_fails_the_cancel_rule() -> None:
+    results = run_with_robot(DeafRobot, outage=0.5)
+    cancel = results["cancel"]
+    assert not cancel.passed
+    assert "acknowledged the cancel of check-" in cancel.sentence
+    assert "still reported it" in cancel.sentence
+    assert results["assign"].passed and results["done"].passed
+

@@ -1,0 +1,218 @@
+"""The gateway in this process against the real Mosquitto and a real Zenoh router.
+
+The IaaS side is a ZenohRobotLink on the router; the AGVs are test vehicles
+written from the specification (vda5050_vehicle.py).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from collections.abc import Callable, Iterator
+from typing import Any
+
+import paho.mqtt.client as mqtt
+import pytest
+from paho.mqtt.enums import CallbackAPIVersion
+from vda5050_testing import vda_state
+from vda5050_vehicle import Vehicle
+
+from robocloud.fleet import Assign, ZenohRobotLink, open_client, open_router
+from robocloud.gateways.vda5050.capabilities import GatewayCapabilities
+from robocloud.gateways.vda5050.gateway import Vda5050Gateway
+from robocloud.gateways.vda5050.zenoh_side import ZenohRobots
+
+pytestmark = pytest.mark.slow
+
+CAPS = GatewayCapabilities.model_validate(
+    {"capabilities": {"lift": {"kind": "actuating", "time": 1.0, "cost": 2.0, "action": "pick"}}}
+)
+
+
+def wait_until(predicate: Callable[[], Any], timeout: float = 10.0) -> Any:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = predicate()
+        if value:
+            return value
+        time.sleep(0.05)
+    raise AssertionError("timed out")
+
+
+@pytest.fixture
+def world(
+    mosquitto: tuple[str, int], interface: str, free_port: int
+) -> Iterator[tuple[ZenohRobotLink, Vda5050Gateway, list[Vehicle]]]:
+    endpoint = f"tcp/127.0.0.1:{free_port}"
+    router = open_router([endpoint])
+    link = ZenohRobotLink(router, "cloud-a", command_timeout=2.0)
+    session = open_client([endpoint], timeout=5.0)
+    gateway = Vda5050Gateway(
+        lambda on_command: ZenohRobots(session, "cloud-a", on_command),
+        *mosquitto,
+        CAPS,
+        interface=interface,
+    )
+    gateway.start()
+    vehicles: list[Vehicle] = []
+    yield link, gateway, vehicles
+    for vehicle in vehicles:
+        vehicle.close()
+    gateway.stop()
+    session.close()  # type: ignore[no-untyped-call]
+    link.close()
+    router.close()  # type: ignore[no-untyped-call]
+    clear_retained(mosquitto, interface, vehicles)
+
+
+def clear_retained(broker: tuple[str, int], interface: str, vehicles: list[Vehicle]) -> None:
+    client = mqtt.Client(CallbackAPIVersion.VERSION2)
+    client.connect(*broker)
+    client.loop_start()
+    for vehicle in vehicles:
+        client.publish(f"{vehicle.base}/connection", b"", qos=1, retain=True).wait_for_publish(5)
+    client.disconnect()
+    client.loop_stop()
+
+
+@pytest.fixture
+def free_port() -> int:
+    import socket
+
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port: int = sock.getsockname()[1]
+    return port
+
+
+def join(world: tuple[ZenohRobotLink, Vda5050Gateway, list[Vehicle]], interface: str,
+         serial: str, x: float, **kw: Any) -> tuple[str, Vehicle]:  # fmt: skip
+    link, _, vehicles = world
+    vehicle = Vehicle(interface, "acme", serial, (x, 0.0), ["pick"], **kw)
+    vehicles.append(vehicle)
+    robot = f"acme.{serial}"
+    wait_until(lambda: robot in link.states() and link.states()[robot].capabilities)
+    return robot, vehicle
+
+
+def test_an_agv_joins_takes_a_task_and_finishes_it(
+    world: tuple[ZenohRobotLink, Vda5050Gateway, list[Vehicle]], interface: str
+) -> None:
+    link, gateway, _ = world
+    robot, vehicle = join(world, interface, "agv-1", 0.0, speed=10.0)
+    state = link.states()[robot]
+    assert state.status == "idle" and state.position == [0.0, 0.0] and state.battery == 90.0
+    assert state.kind == "test-agv" and state.speed == 10.0
+    assert set(state.capabilities) == {"lift"}
+    go = Assign(request_id="req-1", location=[20.0, 0.0], capabilities=["lift"])
+    ack = link.assign(robot, go)
+    assert ack.ok, ack
+    orders = [r for r in vehicle.received if r["topic"].endswith("/order")]
+    assert len(orders) == 1 and orders[0]["errors"] == []
+    end = orders[0]["message"]["nodes"][1]
+    assert end["nodePosition"] == {"x": 20.0, "y": 0.0, "mapId": "floor-1"}
+    assert [a["actionType"] for a in end["actions"]] == ["pick"]
+    phases: list[str] = []
+    link.on_state(lambda s: phases.append(s.task.phase) if s.id == robot and s.task else None)
+    done = wait_until(
+        lambda: (s := link.states()[robot]).last_task is not None and s.last_task.phase == "done"
+    )
+    assert done
+    final = link.states()[robot]
+    assert final.position == [20.0, 0.0] and final.status == "idle"
+    assert "work" in phases
+    assert [r["errors"] for r in vehicle.received if r["errors"]] == []
+    assert any(r["topic"].endswith("/instantActions") for r in vehicle.received)  # factsheet
+    assert all(topic.endswith(("/order", "/instantActions")) for topic, _ in gateway.sent)
+
+
+def test_a_cancel_reaches_the_agv_as_cancel_order(
+    world: tuple[ZenohRobotLink, Vda5050Gateway, list[Vehicle]], interface: str
+) -> None:
+    link, _, _ = world
+    robot, vehicle = join(world, interface, "agv-2", 0.0, speed=2.0)
+    assert link.assign(robot, Assign(request_id="req-2", location=[50.0, 0.0],
+                                     capabilities=["lift"])).ok  # fmt: skip
+    wait_until(lambda: (t := link.states()[robot].task) is not None and t.phase == "travel")
+    # A repeated assign is ok and sends no second order.
+    assert link.assign(robot, Assign(request_id="req-2", location=[50.0, 0.0],
+                                     capabilities=["lift"])).ok  # fmt: skip
+    assert sum(r["topic"].endswith("/order") for r in vehicle.received) == 1
+    ack = link.cancel(robot, "req-2")
+    assert ack.ok, ack
+    wait_until(lambda: any(r["topic"].endswith("/instantActions")
+                           and r["message"]["actions"][0]["actionType"] == "cancelOrder"
+                           for r in vehicle.received))  # fmt: skip
+    cancel = next(r for r in vehicle.received if r["topic"].endswith("/instantActions")
+                  and r["message"]["actions"][0]["actionType"] == "cancelOrder")  # fmt: skip
+    assert cancel["errors"] == []
+    wait_until(lambda: link.states()[robot].task is None and link.states()[robot].status == "idle")
+    assert not vehicle.driving
+    # Cancelling again is harmless; another request's cancel too.
+    assert link.cancel(robot, "req-2").ok
+
+
+def test_refusals_and_a_broken_connection(
+    world: tuple[ZenohRobotLink, Vda5050Gateway, list[Vehicle]], interface: str
+) -> None:
+    link, _, _ = world
+    robot, vehicle = join(world, interface, "agv-3", 0.0, speed=1.0)
+    weld = link.assign(robot, Assign(request_id="req-3", location=[5.0, 0.0],
+                                     capabilities=["weld"]))  # fmt: skip
+    assert not weld.ok and weld.error == "AGV acme.agv-3 lacks the capability weld."
+    assert link.assign(robot, Assign(request_id="req-3", location=[50.0, 0.0],
+                                     capabilities=["lift"])).ok  # fmt: skip
+    busy = link.assign(robot, Assign(request_id="req-4", location=[5.0, 0.0],
+                                     capabilities=["lift"]))  # fmt: skip
+    assert busy.error == "AGV acme.agv-3 is busy with request req-3."
+    # The connection drops without a word: the broker sends the last will.
+    vehicle.drop()
+    failed = wait_until(
+        lambda: (s := link.states()[robot]).status == "offline" and s.last_task is not None
+    )
+    assert failed
+    last = link.states()[robot].last_task
+    assert last is not None and last.request_id == "req-3" and last.phase == "failed"
+
+
+def test_bad_and_partial_messages_are_logged_and_never_stop_the_gateway(
+    world: tuple[ZenohRobotLink, Vda5050Gateway, list[Vehicle]],
+    interface: str,
+    mosquitto: tuple[str, int],
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    link, _, _ = world
+    caplog.set_level(logging.WARNING)
+    client = mqtt.Client(CallbackAPIVersion.VERSION2)
+    client.connect(*mosquitto)
+    client.loop_start()
+    base = f"{interface}/v2/acme"
+    partial = vda_state()
+    del partial["batteryState"]
+    too_full = vda_state(batteryState={"batteryCharge": 150, "charging": False})
+    sends = [
+        (f"{base}/bad-1/state", b"{not json"),
+        (f"{base}/bad-2/state", json.dumps(partial).encode()),
+        (f"{base}/bad-3/state", json.dumps(too_full).encode()),
+        (f"{base}/bad-4/connection", json.dumps({"connectionState": "MAYBE"}).encode()),
+        (f"{base}/bad-5/factsheet", json.dumps({"protocolFeatures": 3}).encode()),
+        (f"{base}/bad$6/state", json.dumps(vda_state()).encode()),
+        (f"{base}/bad-7/state", b"x" * 1_100_000),
+    ]
+    for topic, payload in sends:
+        client.publish(topic, payload, qos=1).wait_for_publish(5)
+    client.disconnect()
+    client.loop_stop()
+    robot, _ = join(world, interface, "agv-4", 0.0)  # the gateway still works
+    assert link.assign(robot, Assign(request_id="req-5", location=[1.0, 0.0],
+                                     capabilities=["lift"])).ok  # fmt: skip
+    said = "\n".join(r.getMessage() for r in caplog.records)
+    assert "bad-1/state: the input is not valid JSON" in said
+    assert "bad-2/state: state.batteryState is missing." in said
+    assert "bad-3/state: batteryState.batteryCharge is 150, not a percent from 0 to 100." in said
+    assert "bad-4/connection: connection.connectionState: input should be" in said
+    assert "bad-5/factsheet: factsheet.protocolFeatures" in said
+    assert "acme.bad$6 cannot be a robot id" in said
+    assert "bad-7/state: it is 1100000 bytes, over the 1048576 accepted." in said
+    assert set(link.states()) == {robot}

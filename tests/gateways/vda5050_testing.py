@@ -1,0 +1,47 @@
+"""What the gateway's tests share: the official schemas, VDA 5050 messages to feed it."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import jsonschema_rs
+
+SCHEMAS = Path(__file__).parent / "vda5050_schemas"
+TOPIC_SCHEMA = {"order": "order", "instantActions": "instantActions"}
+
+
+def schema_errors(name: str, message: Any) -> list[str]:
+    """What the official VDA 5050 schema ``name`` says against ``message`` (empty: valid)."""
+    schema = json.loads((SCHEMAS / f"{name}.json").read_text())
+    validator = jsonschema_rs.validator_for(schema, validate_formats=True)
+    return [f"{e.instance_path}: {e.message}" for e in validator.iter_errors(message)]
+
+
+def vda_state(**changes: Any) -> dict[str, Any]:
+    state: dict[str, Any] = {
+        "headerId": 1, "timestamp": "2026-11-29T23:00:38.12Z", "version": "2.1.0",
+        "manufacturer": "acme", "serialNumber": "agv-1",
+        "orderId": "", "orderUpdateId": 0, "lastNodeId": "", "lastNodeSequenceId": 0,
+        "nodeStates": [], "edgeStates": [], "driving": False, "actionStates": [],
+        "batteryState": {"batteryCharge": 80.0, "charging": False},
+        "operatingMode": "AUTOMATIC", "errors": [],
+        "safetyState": {"eStop": "NONE", "fieldViolation": False},
+        "agvPosition": {"x": 10.0, "y": 5.0, "theta": 0.0, "mapId": "floor-1",
+                        "positionInitialized": True},
+    }  # fmt: skip
+    state.update(changes)
+    return state
+
+
+def factsheet(actions: list[str], speed: float = 2.0) -> dict[str, Any]:
+    return {
+        "protocolFeatures": {
+            "optionalParameters": [],
+            "agvActions": [{"actionType": a, "actionScopes": ["NODE"]} for a in actions]
+            + [{"actionType": "cancelOrder", "actionScopes": ["INSTANT"]}],
+        },
+        "physicalParameters": {"speedMax": speed},
+        "typeSpecification": {"seriesName": "carrier-x"},
+    }

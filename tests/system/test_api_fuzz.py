@@ -45,7 +45,7 @@ def test_schemathesis_finds_nothing(tmp_path: Path) -> None:
                 "--workers",
                 "1",
                 "--request-timeout",
-                "10",
+                "20",  # a cancel may wait up to 15 s for its state to be stored
             ],
             capture_output=True,
             text=True,

@@ -77,6 +77,7 @@ class RequestActor:
         self.record = record
         self.inbox: asyncio.Queue[tuple[lc.Event | None, Reply | None]] = asyncio.Queue()
         self._ops: set[asyncio.Task[None]] = set()
+        self.closed = False  # its loop has ended: what is posted now is answered at once
 
     @property
     def request_id(self) -> str:
@@ -84,6 +85,12 @@ class RequestActor:
 
     def post(self, event: lc.Event, reply: Reply | None = None) -> None:
         """Hand the actor an event (on the event loop's thread)."""
+        if self.closed:
+            # Between the end of its loop and its removal from the service, a
+            # cancel would otherwise wait for an answer that never comes.
+            if reply is not None:
+                _answer(reply, self.record)
+            return
         self.inbox.put_nowait((event, reply))
 
     async def run(self, start: lc.Start) -> None:
@@ -112,6 +119,7 @@ class RequestActor:
             log.exception("request %s: its actor failed", self.request_id)
             await self._crash(error)
         finally:
+            self.closed = True
             for op in list(self._ops):
                 op.cancel()
             await asyncio.gather(*self._ops, return_exceptions=True)

@@ -169,10 +169,14 @@ def create_app(
     app.add_middleware(Gate, keys=settings.api_keys, limit=settings.max_body_bytes)
     routes = _routes()
     app.include_router(routes)
-    app.state.routes = [r for r in routes.routes if isinstance(r, APIRoute)]
     app.openapi = lambda: _openapi(app)  # type: ignore[method-assign]
     install_docs(app)
     install_protocol(app)
+    # Every route, for Allow and the OpenAPI's answers (those of included
+    # routers are not in app.routes as routes of their own).
+    app.state.routes = [
+        r for r in (*routes.routes, *app.router.routes) if isinstance(r, APIRoute)
+    ]
     return app
 
 
@@ -195,7 +199,7 @@ def _openapi(app: FastAPI) -> dict[str, Any]:
         for route in routes:
             success = str(route.status_code or 200)
             for method in route.methods or ():
-                operation = spec["paths"][route.path_format].get(method.lower())
+                operation = spec["paths"].get(route.path_format, {}).get(method.lower())
                 if operation is None:
                     continue
                 declared = {str(code) for code in route.responses} | {success}

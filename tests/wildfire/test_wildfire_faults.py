@@ -65,7 +65,7 @@ def test_a_send_during_a_frozen_home_iaas_is_not_confirmed_then_found(
     console.expect(r"status of 50[24]")  # the sends that timed out
     type_fire(page, 900, 1100)
     fill_limits(page, label="frozen send")
-    want(page, {most_idle(page, "actuating"): 1})
+    want(page, {most_idle(page, "actuating", need=1): 1})
     page.evaluate(RECORD_RESULTS)
     system.freeze("cloud-a")
     frozen_at = time.monotonic()
@@ -107,13 +107,16 @@ def test_a_send_during_a_frozen_home_iaas_is_not_confirmed_then_found(
     expect(alerts).to_contain_text("cloud-a is back")
 
 
-def most_idle(page: Any, kind: str) -> str:
-    """The capability of ``kind`` with the most idle robots, as the form's tiles say."""
+def most_idle(page: Any, kind: str, need: int = 2) -> str:
+    """The capability of ``kind`` with the most idle robots, as the form's tiles say.
+
+    ``need``: at least that many must be idle (two: one for the task, one to replace it).
+    """
     counts = page.eval_on_selector_all(
         f"#caps-{kind} .cap", "cs => cs.map(c => [c.dataset.cap, "
         "parseInt(c.querySelector('.avail').textContent)])")
     name, idle = max(counts, key=lambda c: c[1])
-    assert idle >= 2, f"too few idle robots for a replacement: {counts}"
+    assert idle >= need, f"fewer than {need} idle robots: {counts}"
     return str(name)
 
 
@@ -207,7 +210,7 @@ def test_a_killed_cloud_is_alerted_and_its_robots_greyed(page: Any, system: Syst
     page.select_option("#filter-status", "")
     type_fire(page, 1000, 900)
     fill_limits(page, label="after the loss")
-    want(page, {most_idle(page, "actuating"): 1})
+    want(page, {most_idle(page, "actuating", need=1): 1})
     request_id = send(page)
     expect(page.locator("#state-head")).to_have_attribute("data-request", request_id)
     expect(page.locator("#state-head")).to_have_attribute(

@@ -26,7 +26,7 @@ run: $(STAMP)
 
 test: $(STAMP)
 	sh tests/wildfire/ensure_chromium.sh
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n 2 --dist loadfile
 
 check: lint
 	$(BIN)/python -m pytest -q -m "$(QUICK)"

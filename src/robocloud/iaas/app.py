@@ -46,6 +46,7 @@ from robocloud.fleet.link import RobotLink
 from robocloud.iaas.config import Settings
 from robocloud.iaas.docs_ui import install_docs
 from robocloud.iaas.home import Home, reconcile_period
+from robocloud.iaas.metrics import IaasMetrics
 from robocloud.iaas.models import (
     ErrorBody,
     Health,
@@ -158,7 +159,8 @@ def create_app(
                 settings.cloud, the_store, the_link, overlay, settings.gather_timeout
             )
             home.lenders = view.lenders
-            service = RequestService(settings, the_store, view)
+            service = RequestService(settings, the_store, view, metrics=metrics)
+            metrics.observe_states(settings.cloud, service.robot_statuses, service.active_states)
             service.home_info = home.info
             service.lent_for = home.lent_for
             home.origin = service
@@ -181,6 +183,7 @@ def create_app(
         redoc_url=None,  # Swagger UI without a CDN: iaas/docs_ui.py
     )
     app.state.settings = settings
+    metrics = app.state.metrics = IaasMetrics()
     _install_error_handlers(app)
     app.add_middleware(Gate, keys=settings.api_keys, limit=settings.max_body_bytes)
     # JSON answers of 1 KiB and more, gzipped for clients that accept it (a page
@@ -321,6 +324,20 @@ def _routes() -> Any:
             store=service.settings.store_url.split(":", 1)[0],
             time_scale=service.settings.time_scale,
         )
+
+    @router.get("/metrics", include_in_schema=False)
+    async def metrics(request: Request, application: Application) -> Response:
+        """The IaaS's metrics in the Prometheus text format (docs/metrics.md).
+
+        Out of the OpenAPI: it is the operator's, not an application's. It asks
+        for an API key like ``/v1/`` (the ``Gate``): Prometheus sends one with
+        ``authorization: {credentials: KEY}`` in its scrape config.
+        """
+        the_metrics: IaasMetrics = request.app.state.metrics
+        body, content_type = await asyncio.to_thread(
+            the_metrics.exposition, request.headers.get("accept")
+        )
+        return Response(body, media_type=content_type, headers={"Cache-Control": "no-store"})
 
     @api.post(
         "/v1/requests",
@@ -608,7 +625,8 @@ def _install_error_handlers(app: FastAPI) -> None:
 
 
 class Gate:
-    """Checks what needs no body first: the API key on ``/v1/`` (401), then the body's size (413).
+    """Checks what needs no body first: the API key on ``/v1/`` and ``/metrics`` (401), then the
+    body's size (413).
 
     A pure ASGI middleware, so a request without a key is refused before its
     body is read or parsed, and a body without a length is read at most
@@ -625,7 +643,7 @@ class Gate:
             await self.app(scope, receive, send)
             return
         headers = Headers(scope=scope)
-        if scope["path"].startswith("/v1/"):
+        if scope["path"].startswith("/v1/") or scope["path"] == "/metrics":
             try:
                 application = authenticate(headers.get("authorization"), self.keys)
             except Unauthorized as error:

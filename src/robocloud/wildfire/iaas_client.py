@@ -67,6 +67,7 @@ class IaasClient:
         self._http = httpx.AsyncClient(
             base_url=self.base_url, headers=headers, timeout=timeout, transport=transport
         )
+        self.failures = 0  # calls without a usable answer, or answered 5xx (the metrics)
 
     async def aclose(self) -> None:
         await self._http.aclose()
@@ -127,6 +128,16 @@ class IaasClient:
         self, method: str, path: str, *, timeout: float | None = None, **kwargs: Any
     ) -> tuple[Any, str | None]:
         """The parsed answer, and the URL of its ``Link: <...>; rel="next"`` if it has one."""
+        try:
+            return await self._exchange_once(method, path, timeout=timeout, **kwargs)
+        except IaasError as error:
+            if isinstance(error, IaasUnreachable) or error.status >= 500:
+                self.failures += 1
+            raise
+
+    async def _exchange_once(
+        self, method: str, path: str, *, timeout: float | None = None, **kwargs: Any
+    ) -> tuple[Any, str | None]:
         if timeout is not None:
             kwargs["timeout"] = timeout
         try:

@@ -14,7 +14,6 @@ import logging
 from collections.abc import AsyncIterator, Mapping
 from typing import Annotated, Any, Literal
 
-import msgspec
 from fastapi import Depends, FastAPI, Header, Path, Query, Request, Response, Security
 from fastapi.exceptions import RequestValidationError
 from fastapi.openapi.utils import get_openapi
@@ -62,6 +61,7 @@ from robocloud.iaas.robot_list import (
     DEFAULT_LIMIT,
     MAX_LIMIT,
     RobotFilter,
+    RobotJson,
     build_page,
     decode_cursor,
     etag_of,
@@ -313,6 +313,7 @@ def _routes() -> Any:
     from fastapi import APIRouter
 
     router = APIRouter()
+    robot_json_cache = RobotJson()  # the robots' JSON, for GET /v1/robots
     api = router  # the /v1 routes declare the bearer scheme one by one (SECURED)
 
     @router.get("/healthz", response_model=Health, tags=["service"], operation_id="health")
@@ -529,7 +530,9 @@ def _routes() -> Any:
         if scope == "federation" and overlay is not None and cloud != service.settings.cloud:
             fleets = await asyncio.to_thread(overlay.fleets)
             remote = remote_rows((f.robots for f in fleets), wanted, service.settings.cloud)
-        page = build_page(local, remote, after, limit, link.states(), link.ages(), held)
+        page = build_page(
+            local, remote, after, limit, link.states(), link.ages(), held, robot_json_cache
+        )
         etag = etag_of(page)
         headers = {
             "ETag": etag,
@@ -542,9 +545,7 @@ def _routes() -> Any:
             )
         if matches(if_none_match, etag):
             return Response(status_code=304, headers=headers)
-        return Response(
-            msgspec.json.encode(page.robots), media_type="application/json", headers=headers
-        )
+        return Response(page.body(), media_type="application/json", headers=headers)
 
     @api.get(
         "/v1/clouds",

@@ -61,9 +61,39 @@ class RobotFilter:
 
 @dataclass
 class Page:
-    robots: list[dict[str, Any]]
+    robots: list[bytes]  # each robot's JSON
+    steady: list[bytes]  # the same without seen_ago (what the ETag covers)
     total: int  # robots matching the filters, over every page
     next: Key | None  # the position after this page, if more follow
+
+    def body(self) -> bytes:
+        return b"[" + b",".join(self.robots) + b"]"
+
+
+class RobotJson:
+    """Each robot's JSON but ``seen_ago``, kept while the link hands out the same state.
+
+    A fleet at rest costs a dictionary look-up a robot; a robot whose state
+    changed (the link makes new objects for new states) is encoded again.
+    """
+
+    def __init__(self) -> None:
+        self._kept: dict[str, tuple[Robot, Any, str | None, bytes]] = {}
+
+    def steady(self, robot: Robot, state: Any, request: str | None) -> bytes:
+        kept = self._kept.get(robot.id)
+        if kept is not None and kept[0] is robot and kept[1] is state and kept[2] == request:
+            return kept[3]
+        data = robot_json(robot, state, None, request)
+        del data["seen_ago"]
+        raw = msgspec.json.encode(data)
+        self._kept[robot.id] = (robot, state, request, raw)
+        return raw
+
+    def prune(self, present: int) -> None:
+        """Forget robots no longer listed once the cache is twice the fleet."""
+        if len(self._kept) > 2 * present + 100:
+            self._kept.clear()
 
 
 def encode_cursor(key: Key) -> str:
@@ -146,23 +176,29 @@ def build_page(
     states: dict[str, Any],
     ages: dict[str, float],
     held: dict[str, str],
+    cache: RobotJson,
 ) -> Page:
     rows: list[tuple[Key, Any]] = [*local, *remote]
     chosen, total, next_key = page_of(rows, after, limit)
-    robots = []
+    robots, steady = [], []
     for _, item in chosen:
         if isinstance(item, dict):
-            robots.append(item)
-        else:
-            robots.append(robot_json(item, states.get(item.id), ages.get(item.id),
-                                     held.get(item.id)))
-    return Page(robots, total, next_key)
+            raw = msgspec.json.encode(item)  # seen_ago is null: nothing to leave out
+            robots.append(raw)
+            steady.append(raw)
+            continue
+        raw = cache.steady(item, states.get(item.id), held.get(item.id))
+        age = ages.get(item.id)
+        seen = msgspec.json.encode(round(age, 3)) if age is not None else b"null"
+        robots.append(raw[:-1] + b',"seen_ago":' + seen + b"}")
+        steady.append(raw)
+    cache.prune(len(local))
+    return Page(robots, steady, total, next_key)
 
 
 def etag_of(page: Page) -> str:
     """A weak validator of what the page says, but for ``seen_ago``."""
-    steady = [{**r, "seen_ago": None} for r in page.robots]
-    digest = hashlib.blake2b(msgspec.json.encode(steady), digest_size=12)
+    digest = hashlib.blake2b(b"\n".join(page.steady), digest_size=12)
     if page.next is not None:
         digest.update(b"\0" + encode_cursor(page.next).encode())
     return f'W/"{digest.hexdigest()}"'

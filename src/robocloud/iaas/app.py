@@ -71,7 +71,7 @@ from robocloud.iaas.robot_list import (
     remote_rows,
 )
 from robocloud.iaas.service import REQUEST_ID, RequestService
-from robocloud.storage import RequestRecord, RequestStore, open_store
+from robocloud.storage import RequestRecord, RequestStore, StoreUnavailable, open_store
 
 log = logging.getLogger(__name__)
 
@@ -523,7 +523,11 @@ def _routes() -> Any:
         after = decode_cursor(cursor) if cursor is not None else None
         wanted = RobotFilter(status, tuple(capability or ()), cloud)
         link = service.link
-        held = service.store.reservations()
+        try:
+            held = service.store.reservations()
+        except StoreUnavailable:
+            service.store_failed(service.store.reservations)
+            raise
         local = local_rows(link.robots(), held, wanted)
         remote: list[tuple[tuple[str, str], dict[str, Any]]] = []
         overlay: ZenohOverlay | None = request.app.state.overlay

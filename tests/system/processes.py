@@ -135,7 +135,9 @@ class Cloud:
         count = self.robots if count is None else count
         with self.client() as client:
             wait_until(
-                lambda: len(client.get("/v1/robots").json()) >= count,
+                # X-Total-Count: every robot, whatever the size of a page.
+                lambda: int(client.get("/v1/robots", params={"limit": 1}).headers[
+                    "X-Total-Count"]) >= count,
                 timeout,
                 f"{count} robots of {self.name} to report",
             )

@@ -3,7 +3,7 @@
 Bounded to about 40 s (``--max-time``) with a fixed seed, so a run is
 repeatable. What the fuzzer must not find: a server error, a response that
 breaks the OpenAPI (status code, content type, headers, schema), or data the
-schema allows that the API refuses (with the two documented exceptions in
+schema allows that the API refuses (with the documented exceptions in
 ``schemathesis.toml``).
 """
 

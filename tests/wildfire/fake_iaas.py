@@ -39,6 +39,7 @@ class FakeIaas:
         self.down = False
         self.hang = False
         self.listing: list[dict[str, Any]] | None = None  # GET /v1/clouds
+        self.robots_page: int | None = None  # GET /v1/robots in pages of this many (Link)
         self.clock = START
 
     @property
@@ -75,7 +76,7 @@ class FakeIaas:
         if request.headers.get("authorization") != f"Bearer {KEY}":
             return httpx.Response(401, json={"detail": "the API key is not valid."})
         if path == "/v1/robots":
-            return httpx.Response(200, json=self.robots)
+            return self.robot_page(request)
         if path == "/v1/clouds":
             listing = self.listing if self.listing is not None else [
                 {"cloud": self.cloud, "robots": len(self.robots), "idle": 0, "offline": 0}]
@@ -91,6 +92,19 @@ class FakeIaas:
                 record["state"] = "canceled"
             return httpx.Response(200, json=record)
         return httpx.Response(404, json={"detail": f"there is no request {parts[-1]!r}."})
+
+    def robot_page(self, request: httpx.Request) -> httpx.Response:
+        """The robots, in pages with a ``Link`` to the next one when ``robots_page`` is set."""
+        if self.robots_page is None:
+            return httpx.Response(200, json=self.robots)
+        params = request.url.params
+        start = int(params.get("cursor", "0"))
+        size = min(self.robots_page, int(params.get("limit", "1000")))
+        headers = {}
+        if start + size < len(self.robots):
+            query = httpx.QueryParams(params).set("cursor", str(start + size))
+            headers["Link"] = f'</v1/robots?{query}>; rel="next"'
+        return httpx.Response(200, json=self.robots[start:start + size], headers=headers)
 
     def list(self, request: httpx.Request) -> httpx.Response:
         params = request.url.params

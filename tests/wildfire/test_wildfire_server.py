@@ -19,6 +19,7 @@ from typing import Any
 import pytest
 from fake_iaas import KEY, FakeFederation, FakeIaas, robot
 from fastapi.testclient import TestClient
+from prometheus_client.parser import text_string_to_metric_families
 
 from robocloud.wildfire import create_wildfire_app
 from robocloud.wildfire.app import STATIC
@@ -196,6 +197,46 @@ def test_the_live_stream_is_a_snapshot_then_deltas_gzipped(client: TestClient,
         robots |= {row[0] for row in delta.get("robots", {}).get("add", [])}
     assert robots == {"a-0001", "a-0002", "b-0001"}
     assert set(deltas[-1][1]) <= {"now", "clouds", "capabilities", "endpoints", "config"}
+
+
+def test_the_fleet_is_read_page_after_page(cloud_a: FakeIaas) -> None:
+    cloud_a.robots = [robot(f"a-{i:04d}", "cloud-a") for i in range(5)]
+    cloud_a.robots_page = 2
+    app = create_wildfire_app(settings(cloud_a), transport=FakeFederation(cloud_a).transport())
+    with TestClient(app) as client:
+        robots = until(lambda: len(got := client.get("/api/robots").json()) == 5 and got)
+    assert sorted(r["id"] for r in robots) == [r["id"] for r in cloud_a.robots]
+    pages = [c for c in cloud_a.calls if c.url.path == "/v1/robots"][:3]
+    assert [c.url.params.get("cursor") for c in pages] == [None, "2", "4"]
+    assert pages[0].url.params["limit"] == "10000"
+
+
+def test_metrics_count_pages_streams_sends_and_upstream_errors(
+        client: TestClient, cloud_a: FakeIaas) -> None:
+    def scrape() -> dict[tuple[str, tuple[tuple[str, str], ...]], float]:
+        answer = client.get("/metrics")
+        assert answer.status_code == 200 and answer.headers["content-type"].startswith(
+            "text/plain")
+        return {(s.name, tuple(sorted(s.labels.items()))): s.value
+                for family in text_string_to_metric_families(answer.text)
+                for s in family.samples}
+
+    before = scrape()
+    assert before[("wildfire_sends_total", (("outcome", "accepted"),))] == 0
+    client.get("/")
+    read_events(client, 1)
+    assert client.post("/api/requests", json=TASK).status_code == 202
+    assert client.post("/api/requests", json={**TASK, "location": [-1e6, 0]}).status_code == 422
+    cloud_a.down = True
+    until(lambda: scrape()[("wildfire_upstream_errors_total", (("iaas", cloud_a.url),))] > 0)
+    cloud_a.down = False
+    after = scrape()
+    assert after[("wildfire_page_loads_total", ())] == 1
+    assert after[("wildfire_live_connections_total", ())] == 1
+    assert after[("wildfire_live_sent_bytes_total", ())] > 0
+    assert after[("wildfire_sends_total", (("outcome", "accepted"),))] == 1
+    assert after[("wildfire_sends_total", (("outcome", "refused"),))] == 1
+    assert "/metrics" not in client.get("/openapi.json").json()["paths"]
 
 
 # --- sending -------------------------------------------------------------------------

@@ -21,7 +21,7 @@ import logging
 import random
 import time
 from collections.abc import Awaitable, Callable, Iterable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Protocol, TypeVar
 
 from robocloud.domain import Robot, Task, is_final
@@ -29,6 +29,7 @@ from robocloud.errors import Conflict, Unavailable
 from robocloud.federation.view import FederationView
 from robocloud.fleet.messages import Assign as AssignCommand
 from robocloud.iaas import lifecycle as lc
+from robocloud.iaas.metrics import IaasMetrics
 from robocloud.selection.problem import robot_terms
 from robocloud.selection.result import SelectionResult
 from robocloud.storage import RequestRecord, RequestStore
@@ -65,14 +66,24 @@ class Shell:
     unclaim: Callable[[str, Iterable[str]], None]
     wall: Callable[[], float] = time.time
     mono: Callable[[], float] = time.monotonic
+    metrics: IaasMetrics = field(default_factory=IaasMetrics)
 
 
 Reply = asyncio.Future[RequestRecord]
 
 
 class RequestActor:
-    def __init__(self, shell: Shell, life: lc.Life, record: RequestRecord) -> None:
+    def __init__(
+        self,
+        shell: Shell,
+        life: lc.Life,
+        record: RequestRecord,
+        posted_at: float | None = None,
+    ) -> None:
         self.shell = shell
+        # When its POST came (``shell.mono``), until it is dispatched: None for a
+        # request resumed after a restart.
+        self.posted_at = posted_at
         self.life = life
         self.record = record
         self.inbox: asyncio.Queue[tuple[lc.Event | None, Reply | None]] = asyncio.Queue()
@@ -160,6 +171,10 @@ class RequestActor:
                     detail,
                     dict(selection) if selection is not None else None,
                 )
+                shell.metrics.entered(state)
+                if state == "dispatched" and self.posted_at is not None:
+                    shell.metrics.dispatch_seconds.observe(shell.mono() - self.posted_at)
+                    self.posted_at = None
                 shell.publish(self.record)
             case lc.Note(detail):
                 self.record = await self._write(shell.store.add_event, rid, detail)
@@ -255,10 +270,14 @@ class RequestActor:
             await asyncio.sleep(random.uniform(0.0, COLLISION_PAUSE * effect.attempt))
         exclude = set(effect.exclude)
         gathered = await shell.blocking(shell.view.remote_robots, effect.task, exclude)
+        if gathered.gather_ms > 0:  # other clouds were asked
+            shell.metrics.overlay_seconds.labels("gather").observe(gathered.gather_ms / 1000)
         held = set(shell.held())
         local = await shell.blocking(shell.view.local_robots, held)
         robots = [r for r in local if r.id not in exclude] + gathered.robots
+        started = shell.mono()
         result = await shell.selector(robots, effect.task)
+        shell.metrics.selection_seconds.observe(shell.mono() - started)
         selection = selection_json(result)
         notes = (*gathered.notes, *([result.note] if result.note else []))
         if result.chosen is None:
@@ -281,8 +300,13 @@ class RequestActor:
         view = self.shell.view
         acks = await asyncio.gather(
             *(
-                self.shell.blocking(
-                    view.assign, m.robot, m.cloud, command_for(self.request_id, m, task)
+                self._timed(
+                    "assign",
+                    m.cloud,
+                    view.assign,
+                    m.robot,
+                    m.cloud,
+                    command_for(self.request_id, m, task),
                 )
                 for m in members
             )
@@ -299,10 +323,27 @@ class RequestActor:
         view = self.shell.view
         await asyncio.gather(
             *(
-                self.shell.blocking(view.cancel, robot, cloud, self.request_id)
+                self._timed("stop", cloud, view.cancel, robot, cloud, self.request_id)
                 for robot, cloud in robots
             )
         )
+
+    async def _timed(
+        self, command: str, cloud: str, call: Callable[..., T], *args: Any
+    ) -> T:
+        """A command to one robot, its wait measured: an ack here, the overlay for a loan."""
+        shell = self.shell
+        started = shell.mono()
+        try:
+            result: T = await shell.blocking(call, *args)
+            return result
+        finally:
+            elapsed = shell.mono() - started
+            if cloud == shell.view.cloud:
+                shell.metrics.ack_seconds.labels(command).observe(elapsed)
+            else:
+                operation = "dispatch" if command == "assign" else "cancel"
+                shell.metrics.overlay_seconds.labels(operation).observe(elapsed)
 
 
 def _answer(reply: Reply, record: RequestRecord) -> None:

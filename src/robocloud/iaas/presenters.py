@@ -4,13 +4,14 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
+from robocloud.domain import Robot
+from robocloud.fleet.messages import State
 from robocloud.iaas.models import (
     Assignment,
     FrontMember,
     HistoryEntry,
     Progress,
     RequestPublic,
-    RobotPublic,
 )
 from robocloud.storage import RequestRecord
 
@@ -69,55 +70,55 @@ def request_public(record: RequestRecord, service: RequestService) -> RequestPub
     )
 
 
-def robot_public(service: RequestService) -> list[RobotPublic]:
-    states = service.link.states()
-    ages = service.link.ages()
-    held = service.store.reservations()
-    robots = []
-    for robot in service.link.robots():
-        state = states.get(robot.id)
-        request = held.get(robot.id)
-        progress = None
-        if state is not None and state.task is not None:
-            progress = Progress(phase=state.task.phase, progress=state.task.progress)
-        status = robot.status
-        if status == "idle" and request is not None:
-            status = "reserved"
-        robots.append(
-            RobotPublic(
-                id=robot.id,
-                cloud=robot.cloud,
-                kind=state.kind if state else None,
-                position=list(robot.position),
-                speed=robot.speed,
-                battery=robot.battery,
-                status=status,
-                capabilities=sorted(robot.capabilities),
-                capability_kinds={n: c.kind for n, c in robot.capabilities.items()},
-                request=request,
-                progress=progress,
-                seen_ago=round(ages[robot.id], 3) if robot.id in ages else None,
-            )
-        )
-    return robots
+def robot_json(
+    robot: Robot, state: State | None, age: float | None, request: str | None
+) -> dict[str, Any]:
+    """One robot of this cloud as ``RobotPublic`` puts it on the wire, as plain JSON values.
+
+    Plain values, not models: ``GET /v1/robots`` builds thousands a page.
+    """
+    progress = None
+    if state is not None and state.task is not None:
+        progress = {"phase": state.task.phase, "progress": float(state.task.progress)}
+    return {
+        "id": robot.id,
+        "cloud": robot.cloud,
+        "kind": state.kind if state else None,
+        "position": [float(v) for v in robot.position],
+        "speed": float(robot.speed),
+        "battery": float(robot.battery),
+        "status": shown_status(robot.status, request),
+        "capabilities": sorted(robot.capabilities),
+        "capability_kinds": {n: c.kind for n, c in robot.capabilities.items()},
+        "request": request,
+        "progress": progress,
+        "seen_ago": round(age, 3) if age is not None else None,
+    }
 
 
-def remote_robot_public(data: dict[str, Any]) -> RobotPublic:
-    """A robot of another cloud, as its home described it (``FleetReply``)."""
+def shown_status(status: str, request: str | None) -> str:
+    """An idle robot that a request (or a loan) holds is shown as ``reserved``."""
+    return "reserved" if status == "idle" and request is not None else status
+
+
+def remote_robot_json(data: dict[str, Any]) -> dict[str, Any]:
+    """A robot of another cloud, as its home described it (``FleetReply``), on the wire."""
     task = data.get("progress")
     progress = None
     if task:
-        progress = Progress(phase=task["phase"], progress=task["progress"])
-    return RobotPublic(
-        id=data["id"],
-        cloud=data["cloud"],
-        kind=data.get("kind"),
-        position=data["position"],
-        speed=data["speed"],
-        battery=data["battery"],
-        status=data["status"],
-        capabilities=sorted(data.get("capabilities", {})),
-        capability_kinds={n: c["kind"] for n, c in data.get("capabilities", {}).items()},
-        request=data.get("request"),
-        progress=progress,
-    )
+        progress = {"phase": task["phase"], "progress": float(task["progress"])}
+    capabilities = data.get("capabilities", {})
+    return {
+        "id": data["id"],
+        "cloud": data["cloud"],
+        "kind": data.get("kind"),
+        "position": [float(v) for v in data["position"]],
+        "speed": float(data["speed"]),
+        "battery": float(data["battery"]),
+        "status": data["status"],
+        "capabilities": sorted(capabilities),
+        "capability_kinds": {n: c["kind"] for n, c in capabilities.items()},
+        "request": data.get("request"),
+        "progress": progress,
+        "seen_ago": None,
+    }

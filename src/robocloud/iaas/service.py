@@ -40,10 +40,11 @@ from robocloud.fleet.messages import State
 from robocloud.iaas import lifecycle as lc
 from robocloud.iaas.actor import RequestActor, Selector, Shell
 from robocloud.iaas.config import Settings
+from robocloud.iaas.metrics import IaasMetrics
 from robocloud.iaas.selector import SelectionPool, SelectorSettings
 from robocloud.selection.pipeline import select
 from robocloud.selection.result import SelectionResult
-from robocloud.storage import RequestRecord, RequestStore
+from robocloud.storage import RequestRecord, RequestStore, StoreUnavailable
 
 log = logging.getLogger(__name__)
 
@@ -68,8 +69,10 @@ class RequestService:
         view: FederationView,
         clock: Callable[[], float] = time.time,
         selector: Selector | None = None,
+        metrics: IaasMetrics | None = None,
     ) -> None:
         self.settings = settings
+        self.metrics = metrics or IaasMetrics()
         self.store = store
         self.view = view
         self.link = view.link
@@ -110,6 +113,7 @@ class RequestService:
             claim=self._claim,
             unclaim=self._unclaim,
             wall=clock,
+            metrics=self.metrics,
         )
         self._actors: dict[str, RequestActor] = {}
         self._tasks: set[asyncio.Task[Any]] = set()  # actors and background work
@@ -153,9 +157,16 @@ class RequestService:
         return await loop.run_in_executor(self._io, partial(function, *args))
 
     async def in_store(self, function: Callable[..., T], *args: Any) -> T:
-        """``function(*args)`` on the store's threads."""
+        """``function(*args)`` on the store's threads (a failure counted in the metrics)."""
         loop = asyncio.get_running_loop()
-        return await loop.run_in_executor(self._store_threads, partial(function, *args))
+        try:
+            return await loop.run_in_executor(self._store_threads, partial(function, *args))
+        except StoreUnavailable:
+            self.store_failed(function)
+            raise
+
+    def store_failed(self, function: Callable[..., Any]) -> None:
+        self.metrics.store_errors.labels(getattr(function, "__name__", "call")).inc()
 
     def _spawn(self, work: Coroutine[Any, Any, Any], what: str) -> asyncio.Task[Any]:
         """A task this service owns: awaited in ``stop``, its error logged."""
@@ -170,8 +181,14 @@ class RequestService:
         task.add_done_callback(done)
         return task
 
-    def _start(self, record: RequestRecord, life: lc.Life, start: lc.Start) -> None:
-        actor = RequestActor(self._shell, life, record)
+    def _start(
+        self,
+        record: RequestRecord,
+        life: lc.Life,
+        start: lc.Start,
+        posted_at: float | None = None,
+    ) -> None:
+        actor = RequestActor(self._shell, life, record, posted_at)
         self._actors[record.id] = actor
         task = self._spawn(actor.run(start), f"the actor of request {record.id}")
 
@@ -198,6 +215,7 @@ class RequestService:
     async def submit(
         self, application: str, task: Task, label: str | None, idempotency_key: str | None
     ) -> RequestRecord:
+        posted_at = self._shell.mono()
         task_json = task.model_dump(mode="json")
         record, created = await self.in_store(
             self.store.create_request, application, task_json, label, idempotency_key
@@ -212,7 +230,8 @@ class RequestService:
                 )
             return record
         life = lc.Life(request_id=record.id, task=task, rules=self._shell.rules)
-        self._start(record, life, lc.Start())
+        self.metrics.entered(record.state)
+        self._start(record, life, lc.Start(), posted_at)
         return record
 
     async def get(self, application: str, request_id: str) -> RequestRecord:
@@ -221,7 +240,11 @@ class RequestService:
         if self.store.local_reads:
             # Measured (benchmarks/service.py, 1,000 robots, GET at 200/s):
             # the two thread hand-offs, not the 0.5 ms read, made the slow tail.
-            record = self.store.get(request_id, application)
+            try:
+                record = self.store.get(request_id, application)
+            except StoreUnavailable:
+                self.store_failed(self.store.get)
+                raise
         else:
             record = await self.in_store(self.store.get, request_id, application)
         if record is None:
@@ -256,6 +279,23 @@ class RequestService:
         )
         self._publish(record)
         return record
+
+    def active_states(self) -> list[str]:
+        """The state of each request an actor carries out now (any thread: a snapshot)."""
+        return [actor.record.state for actor in list(self._actors.values())]
+
+    def robot_statuses(self) -> list[tuple[str, str]]:
+        """(cloud, status) of each robot of this cloud, as ``GET /v1/robots`` shows it."""
+        try:
+            held = self.store.reservations()
+        except StoreUnavailable:
+            self.store_failed(self.store.reservations)
+            held = {}
+        return [
+            (robot.cloud, "reserved" if robot.status == "idle" and robot.id in held
+             else robot.status)
+            for robot in self.link.robots()
+        ]
 
     def progress_of(self, robot_id: str) -> tuple[str, float] | None:
         member = self._member(robot_id)

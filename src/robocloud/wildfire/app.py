@@ -11,6 +11,7 @@ through :class:`~robocloud.wildfire.iaas_pool.IaasPool`, and errors become
 
     GET  /                              the page
     GET  /static/...                    its scripts, styles and icon (no CDN)
+    GET  /metrics                       Prometheus text format (docs/metrics.md)
     GET  /api/live                      server-sent events: a snapshot, then a delta a tick
     GET  /api/health                    each IaaS's health; 200 while any answers
     GET  /api/config                    the forest, the currency, the robots' time scale
@@ -43,7 +44,7 @@ from typing import Annotated, Any
 import httpx
 from fastapi import APIRouter, Depends, FastAPI, Header, Request
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import FileResponse, JSONResponse, StreamingResponse
+from fastapi.responses import FileResponse, JSONResponse, Response, StreamingResponse
 from fastapi.staticfiles import StaticFiles
 from starlette.datastructures import MutableHeaders
 from starlette.exceptions import HTTPException as StarletteHTTPException
@@ -55,6 +56,7 @@ from robocloud.wildfire.feed import LiveFeed, TooManyPages
 from robocloud.wildfire.iaas_client import IaasError, IaasUnreachable
 from robocloud.wildfire.iaas_pool import Endpoint, IaasPool
 from robocloud.wildfire.live import LiveModel, request_summary
+from robocloud.wildfire.metrics import WildfireMetrics
 
 log = logging.getLogger(__name__)
 
@@ -90,6 +92,7 @@ def create_wildfire_app(
         model = LiveModel(settings, clock())
         feed = LiveFeed(pool, model, clock)
         app.state.pool, app.state.model, app.state.feed = pool, model, feed
+        metrics.watch(feed, pool)
         running = asyncio.ensure_future(feed.run())
         try:
             yield
@@ -108,6 +111,7 @@ def create_wildfire_app(
         redoc_url=None,
     )
     app.state.settings = settings
+    metrics = app.state.metrics = WildfireMetrics()
     _install_error_handlers(app)
     # JSON and the page's files; the live stream compresses itself (feed.py).
     app.add_middleware(GZipMiddleware, minimum_size=1024)
@@ -117,7 +121,14 @@ def create_wildfire_app(
 
     @app.get("/", include_in_schema=False)
     async def page() -> FileResponse:
+        metrics.page_loads.inc()
         return FileResponse(STATIC / "index.html", headers={"Cache-Control": "no-cache"})
+
+    @app.get("/metrics", include_in_schema=False)
+    async def scrape(request: Request) -> Response:
+        """Prometheus text format (docs/metrics.md); open, like the page this server serves."""
+        body, content_type = metrics.exposition(request.headers.get("accept"))
+        return Response(body, media_type=content_type, headers={"Cache-Control": "no-store"})
 
     return app
 
@@ -130,6 +141,11 @@ def pool_of(request: Request) -> IaasPool:
 def model_of(request: Request) -> LiveModel:
     model: LiveModel = request.app.state.model
     return model
+
+
+def metrics_of(request: Request) -> WildfireMetrics:
+    metrics: WildfireMetrics = request.app.state.metrics
+    return metrics
 
 
 def feed_of(request: Request) -> LiveFeed:
@@ -157,6 +173,7 @@ def _api() -> APIRouter:
         except TooManyPages:
             raise IaasError(503, "too many pages follow this server; close one and "
                                  "reload.") from None
+        metrics_of(request).live_connections.inc()
         compress = "gzip" in request.headers.get("accept-encoding", "")
         headers = {"Cache-Control": "no-store", "X-Accel-Buffering": "no"}
         if compress:
@@ -218,9 +235,18 @@ def _api() -> APIRouter:
         if idempotency_key is not None and not IDEMPOTENCY_KEY.fullmatch(idempotency_key):
             raise IaasError(422, "the Idempotency-Key header must be 1 to 200 printable "
                                  "characters without spaces.")
-        body = await _bounded_body(request)
-        _check_task(body, model)
-        record, endpoint = await pool.create_request(body, idempotency_key)
+        sends = metrics_of(request).sends
+        try:
+            body = await _bounded_body(request)
+            _check_task(body, model)
+            record, endpoint = await pool.create_request(body, idempotency_key)
+        except IaasUnreachable:
+            sends.labels("unknown").inc()
+            raise
+        except IaasError as error:
+            sends.labels("refused" if error.status < 500 else "failed").inc()
+            raise
+        sends.labels("accepted").inc()
         model.ingest_request(record, endpoint.cloud, time.time())
         return JSONResponse(_with_home(record, endpoint), status_code=202)
 

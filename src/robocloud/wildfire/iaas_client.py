@@ -24,6 +24,10 @@ REQUEST_ID = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]{0,127}")
 LIST_PARAMETERS = ("state", "limit", "before")
 # 100,000 robots are about 30 MB of JSON: an answer beyond this is not an IaaS's.
 MAX_ANSWER_BYTES = 64 * 1024 * 1024
+# GET /v1/robots comes in pages (the Link header's rel="next"): the largest an
+# IaaS gives, and a bound on how many are followed (100,000 robots).
+ROBOTS_PAGE = 10_000
+MAX_ROBOT_PAGES = 10
 
 # Errors raised before a byte of the call left: the IaaS cannot have acted on it.
 NOT_SENT = (httpx.ConnectError, httpx.ConnectTimeout, httpx.PoolTimeout, httpx.UnsupportedProtocol)
@@ -63,6 +67,7 @@ class IaasClient:
         self._http = httpx.AsyncClient(
             base_url=self.base_url, headers=headers, timeout=timeout, transport=transport
         )
+        self.failures = 0  # calls without a usable answer, or answered 5xx (the metrics)
 
     async def aclose(self) -> None:
         await self._http.aclose()
@@ -74,9 +79,20 @@ class IaasClient:
         return _list(await self._call("GET", "/v1/clouds", timeout=timeout), self.base_url)
 
     async def robots(self, scope: str = "federation", timeout: float | None = None) -> list[Any]:
-        """Every robot the IaaS sees: its own and, in a federation, every live cloud's."""
-        answer = await self._call("GET", "/v1/robots", params={"scope": scope}, timeout=timeout)
-        return _list(answer, self.base_url)
+        """Every robot the IaaS sees: its own and, in a federation, every live cloud's.
+
+        Page after page while the IaaS names a next one (``Link: <...>; rel="next"``,
+        a path of the same route); an IaaS that does not page answers in one.
+        """
+        robots: list[Any] = []
+        path = f"/v1/robots?scope={scope}&limit={ROBOTS_PAGE}"
+        for _ in range(MAX_ROBOT_PAGES):
+            answer, following = await self._exchange("GET", path, timeout=timeout)
+            robots += _list(answer, self.base_url)
+            if following is None or not following.startswith("/v1/robots?"):
+                break
+            path = following
+        return robots
 
     async def list_requests(
         self, params: dict[str, str], timeout: float | None = None
@@ -106,11 +122,28 @@ class IaasClient:
     async def _call(
         self, method: str, path: str, *, timeout: float | None = None, **kwargs: Any
     ) -> Any:
+        return (await self._exchange(method, path, timeout=timeout, **kwargs))[0]
+
+    async def _exchange(
+        self, method: str, path: str, *, timeout: float | None = None, **kwargs: Any
+    ) -> tuple[Any, str | None]:
+        """The parsed answer, and the URL of its ``Link: <...>; rel="next"`` if it has one."""
+        try:
+            return await self._exchange_once(method, path, timeout=timeout, **kwargs)
+        except IaasError as error:
+            if isinstance(error, IaasUnreachable) or error.status >= 500:
+                self.failures += 1
+            raise
+
+    async def _exchange_once(
+        self, method: str, path: str, *, timeout: float | None = None, **kwargs: Any
+    ) -> tuple[Any, str | None]:
         if timeout is not None:
             kwargs["timeout"] = timeout
         try:
             async with self._http.stream(method, path, **kwargs) as answer:
                 content = await _bounded(answer)
+                following = answer.links.get("next", {}).get("url")
         except NOT_SENT as error:
             raise IaasUnreachable(
                 self.base_url,
@@ -135,7 +168,7 @@ class IaasClient:
             raise IaasError(answer.status_code, _sentence(answer.status_code,
                                                           answer.reason_phrase, content))
         try:
-            return json.loads(content)
+            return json.loads(content), following
         except ValueError:
             raise _not_json(self.base_url, "its answer is not JSON") from None
 

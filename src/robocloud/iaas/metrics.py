@@ -1,0 +1,153 @@
+"""The IaaS's metrics, in the Prometheus text format (``GET /metrics``): every name in one place.
+
+Each app has a registry of its own (tests run several IaaSs in one process),
+so nothing here is global. The names, their labels and what moves them are
+listed in docs/metrics.md; keep the two together.
+
+Counters and histograms are moved where things happen (the request actors,
+the service's store calls); the gauges are computed when Prometheus scrapes,
+from the robot link, the store's reservations and the service's actors (no
+network: each IaaS exports its own cloud, Prometheus adds the federation up).
+"""
+
+from __future__ import annotations
+
+from collections import Counter as Tally
+from collections.abc import Callable, Iterable, Iterator
+
+from prometheus_client import CollectorRegistry, Counter, Histogram, disable_created_metrics
+from prometheus_client.core import GaugeMetricFamily, Metric
+from prometheus_client.exposition import choose_encoder
+
+from robocloud.domain.request import ACTIVE_STATES, FINAL_STATES, REQUEST_STATES
+from robocloud.domain.robot import ROBOT_STATUSES
+
+# No ``*_created`` series beside each counter and histogram: noise for a
+# dashboard (a switch of the whole process, the same for every IaaS in it).
+disable_created_metrics()  # type: ignore[no-untyped-call]
+
+# Seconds. Selections take milliseconds to their budget (seconds); a dispatch
+# waits for a selection and the robots' acks (up to the ack timeout).
+FAST_BUCKETS = (0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0)
+SLOW_BUCKETS = (0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0, 30.0, 60.0)
+COMMANDS = ("assign", "stop")
+OVERLAY_OPERATIONS = ("gather", "dispatch", "cancel")
+
+RobotCounts = Callable[[], Iterable[tuple[str, str]]]  # (cloud, status) of each robot
+ActiveStates = Callable[[], Iterable[str]]  # the state of each active request
+
+
+class IaasMetrics:
+    """The metrics of one IaaS; ``exposition`` is what ``GET /metrics`` answers."""
+
+    def __init__(self) -> None:
+        self.registry = CollectorRegistry(auto_describe=True)
+        r = self.registry
+        self.transitions = Counter(
+            "robocloud_request_transitions",
+            "Times a request entered a state (received: accepted by POST /v1/requests, "
+            "an idempotent retry not counted).",
+            ["state"],
+            registry=r,
+        )
+        self.finished = Counter(
+            "robocloud_requests_finished",
+            "Requests that reached a final state, by that state.",
+            ["outcome"],
+            registry=r,
+        )
+        self.selection_seconds = Histogram(
+            "robocloud_selection_seconds",
+            "Wall time of one selection (the pipeline, in a worker process or a thread).",
+            buckets=FAST_BUCKETS,
+            registry=r,
+        )
+        self.dispatch_seconds = Histogram(
+            "robocloud_post_to_dispatched_seconds",
+            "From the POST of a request to its dispatched state (selected, reserved, acked).",
+            buckets=SLOW_BUCKETS,
+            registry=r,
+        )
+        self.ack_seconds = Histogram(
+            "robocloud_command_ack_seconds",
+            "From sending a command to a robot of this cloud to its acknowledgement "
+            "(or the ack timeout).",
+            ["command"],
+            buckets=FAST_BUCKETS,
+            registry=r,
+        )
+        self.overlay_seconds = Histogram(
+            "robocloud_overlay_seconds",
+            "Calls to other clouds over the federation overlay: gathering idle robots, "
+            "and commands to borrowed robots.",
+            ["operation"],
+            buckets=FAST_BUCKETS,
+            registry=r,
+        )
+        self.store_errors = Counter(
+            "robocloud_store_errors",
+            "Store calls that found the store unavailable, by the store's method.",
+            ["operation"],
+            registry=r,
+        )
+        # Every label value known in advance shows at 0 from the first scrape.
+        for state in REQUEST_STATES:
+            self.transitions.labels(state)
+        for outcome in sorted(FINAL_STATES):
+            self.finished.labels(outcome)
+        for command in COMMANDS:
+            self.ack_seconds.labels(command)
+
+        self._gauges = _Gauges("", lambda: (), lambda: ())
+        self.registry.register(self._gauges)
+
+    def observe_states(self, cloud: str, robots: RobotCounts, active: ActiveStates) -> None:
+        """Where the gauges read at each scrape: the robots (cloud, status), the active requests."""
+        self._gauges.cloud, self._gauges.robots, self._gauges.active = cloud, robots, active
+
+    def entered(self, state: str) -> None:
+        self.transitions.labels(state).inc()
+        if state in FINAL_STATES:
+            self.finished.labels(state).inc()
+
+    def exposition(self, accept: str | None) -> tuple[bytes, str]:
+        """The scrape's body and content type (OpenMetrics if the scraper asks for it)."""
+        encode, content_type = choose_encoder(accept or "")
+        return encode(self.registry), content_type
+
+
+class _Gauges:
+    """A collector computing its values at scrape time."""
+
+    def __init__(self, cloud: str, robots: RobotCounts, active: ActiveStates) -> None:
+        self.cloud = cloud
+        self.robots = robots
+        self.active = active
+
+    def describe(self) -> list[Metric]:
+        return []  # computed at scrape: nothing to check in advance
+
+    def collect(self) -> Iterator[Metric]:
+        robots = GaugeMetricFamily(
+            "robocloud_robots",
+            "Robots of this cloud the IaaS hears from, by cloud and status "
+            "(reserved: idle and held by a request or a loan).",
+            labels=["cloud", "status"],
+        )
+        counts = Tally(self.robots())
+        if self.cloud:
+            for status in ROBOT_STATUSES:
+                counts.setdefault((self.cloud, status), 0)
+        for (cloud, status), n in sorted(counts.items()):
+            robots.add_metric([cloud, status], n)
+        yield robots
+        requests = GaugeMetricFamily(
+            "robocloud_requests_active",
+            "Requests this IaaS is carrying out now, by state.",
+            labels=["state"],
+        )
+        states = Tally(self.active())
+        for state in REQUEST_STATES:
+            if state in ACTIVE_STATES:
+                requests.add_metric([state], states.get(state, 0))
+        yield requests

@@ -3,12 +3,11 @@
 from __future__ import annotations
 
 import json
-from pathlib import Path
 from typing import Any
 
 import jsonschema_rs
+from vda5050_vehicle import SCHEMAS
 
-SCHEMAS = Path(__file__).parent / "vda5050_schemas"
 TOPIC_SCHEMA = {"order": "order", "instantActions": "instantActions"}
 
 

@@ -7,7 +7,7 @@ order's nodes in a straight line at ``speed`` and runs the actions of each
 node it reaches (SOFT ones together, HARD ones one after the other) for
 ``action_time`` seconds each, and obeys ``cancelOrder``. Every order and
 instant action it receives is checked against the official JSON schemas
-(tests/gateways/vda5050_schemas/) and kept, with what the schema said.
+(as the PyPI package vda5050-sdk ships them) and kept, with what the schema said.
 
 As a process (so a test can kill it and the broker sends its last will)::
 
@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import datetime as dt
+import importlib.metadata
 import json
 import math
 import signal
@@ -32,7 +33,22 @@ import jsonschema_rs
 import paho.mqtt.client as mqtt
 from paho.mqtt.enums import CallbackAPIVersion
 
-SCHEMAS = Path(__file__).parent / "vda5050_schemas"
+
+def official_schemas() -> Path:
+    """The VDA 5050 2.1 JSON schemas as the PyPI package ``vda5050-sdk`` ships them.
+
+    The package (a dev dependency) carries copies of the VDA 5050 community's
+    schemas; they are read where it installed them, never copied here.
+    """
+    folder = Path(str(importlib.metadata.distribution("vda5050-sdk").locate_file(
+        "vda5050/validation/schemas")))
+    if not (folder / "order.json").is_file():
+        raise SystemExit(
+            f"the VDA 5050 schemas are not at {folder}: install vda5050-sdk (make venv)")
+    return folder
+
+
+SCHEMAS = official_schemas()
 VERSION = "2.1.0"
 
 

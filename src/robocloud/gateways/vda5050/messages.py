@@ -3,7 +3,7 @@
 Topics are ``<interface>/<major>/<manufacturer>/<serialNumber>/<topic>``. The
 gateway reads ``connection``, ``state``, ``factsheet`` and ``visualization``
 and writes ``order`` and ``instantActions``; what it writes validates against
-the VDA 5050 2.x JSON schemas (tests/gateways/vda5050_schemas/).
+the VDA 5050 2.x JSON schemas (in the tests, as the PyPI package vda5050-sdk ships them).
 
 The models below read only what the gateway uses, leniently (other fields are
 ignored), but a field it uses must be there with the right type: a message

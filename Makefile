@@ -29,7 +29,7 @@ test: $(STAMP)
 	$(BIN)/python -m pytest -q -n 2 --dist loadfile
 
 check: lint
-	$(BIN)/python -m pytest -q -m "$(QUICK)"
+	$(BIN)/python -m pytest -q -n 2 -m "$(QUICK)"
 
 lint: $(STAMP)
 	$(BIN)/ruff check src tests benchmarks examples

@@ -101,3 +101,14 @@ def test_release_gives_robots_back_to_every_home() -> None:
     a.view.release(record.id, pairs, "canceled")
     assert b.store.loans() == []
     a.view.release(record.id, pairs, "canceled")  # again: harmless
+
+
+def test_a_robot_reserved_here_is_reserved_at_once_for_selections() -> None:
+    """The cached read of the store's reservations does not hide a reservation made here."""
+    _, c = clouds(("cloud-a",), robots=2)
+    a = c["cloud-a"]
+    assert {r.id: r.status for r in a.view.local_robots()} == {"a-0": "idle", "a-1": "idle"}
+    rid, _ = a.store.create_request("app", {})
+    # The read above is still served (RESERVATIONS_TTL); the reservation shows anyway.
+    assert a.view.reserve(rid.id, [("a-0", "cloud-a")]) == []
+    assert {r.id: r.status for r in a.view.local_robots()} == {"a-0": "reserved", "a-1": "idle"}

@@ -64,6 +64,7 @@ class FederationView:
         self.overlay = overlay
         self.gather_timeout = gather_timeout
         self._reserved: tuple[float, set[str]] | None = None  # (when read, robot ids)
+        self._recent: dict[str, float] = {}  # robots reserved here lately -> when
         self._lenders: set[str] = set()
         self._lock = threading.Lock()
 
@@ -83,9 +84,12 @@ class FederationView:
         """This cloud's robots; those reserved in the store (or ``held``) as ``reserved``.
 
         The store's reservations are read at most every ``RESERVATIONS_TTL``
-        seconds: selections running at once share one read. A robot reserved
-        since looks free for that long; its reservation is then refused
-        (``reserve`` returns it as taken) and the selection runs again.
+        seconds: selections running at once share one read. The robots this
+        process reserves meanwhile are added to that read at once (``reserve``);
+        only a robot reserved by another process (another IaaS on the same
+        store, a loan) can look free for that long, and its reservation is
+        then refused (``reserve`` returns it as taken) and the selection runs
+        again.
         """
         reserved = self._reservations() | set(held)
         return [
@@ -98,11 +102,28 @@ class FederationView:
     def _reservations(self) -> set[str]:
         now = time.monotonic()
         cached = self._reserved
-        if cached is not None and now - cached[0] < RESERVATIONS_TTL:
+        if cached is None or now - cached[0] >= RESERVATIONS_TTL:
+            cached = (now, set(self.store.reservations()))
+            self._reserved = cached
+        recent = self._recent
+        if not recent:
             return cached[1]
-        reserved = set(self.store.reservations())
-        self._reserved = (now, reserved)
-        return reserved
+        return cached[1] | {r for r, at in recent.items() if now - at < 2 * RESERVATIONS_TTL}
+
+    def _reserved_now(self, ids: Iterable[str]) -> None:
+        """Robots just reserved here count as reserved until every cached read has them.
+
+        A read of the store made just before this reservation was written is
+        served for up to ``RESERVATIONS_TTL``: the robots stay in ``_recent``
+        for twice that. Copy on write, as selections read it from other threads.
+        """
+        now = time.monotonic()
+        with self._lock:
+            recent = {
+                r: at for r, at in self._recent.items() if now - at < 2 * RESERVATIONS_TTL
+            }
+            recent.update((r, now) for r in ids)
+            self._recent = recent
 
     def remote_robots(self, task: Task, exclude: set[str]) -> View:
         """The idle robots of the other live clouds that answer within the timeout."""
@@ -140,6 +161,8 @@ class FederationView:
         for cloud, ids in by_cloud.items():
             if cloud == self.cloud:
                 taken = self.store.reserve(request_id, ids)
+                if not taken:
+                    self._reserved_now(ids)
             else:
                 assert self.overlay is not None, "a remote robot without an overlay"
                 self._borrowing_from(cloud)

@@ -139,9 +139,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     for problem in problems:
         print(problem, file=sys.stderr)
     if problems:
-        print(
-            f"run: python -m robocloud.fleet.schemas --write {args.check}", file=sys.stderr
-        )
+        print(f"run: python -m robocloud.fleet.schemas --write {args.check}", file=sys.stderr)
     return 1 if problems else 0
 
 

@@ -240,8 +240,23 @@ class SelectionPool:
         self._workers.clear()
 
 
+# The wire form of each robot last sent, by id: the robot link keeps a Robot
+# while its states repeat it, so most candidates are the same objects from one
+# selection to the next and need not be made into tuples again.
+_WIRES: dict[str, tuple[Robot, Wire]] = {}
+_MAX_WIRES = 200_000
+
+
 def _candidates(robots: Sequence[Robot], task: Task) -> list[Wire]:
-    return [to_wire(r) for r in filter_robots(robots, task)]
+    wires = []
+    for robot in filter_robots(robots, task):
+        known = _WIRES.get(robot.id)
+        if known is None or known[0] is not robot:
+            if len(_WIRES) >= _MAX_WIRES:
+                _WIRES.clear()
+            known = _WIRES[robot.id] = (robot, to_wire(robot))
+        wires.append(known[1])
+    return wires
 
 
 def failed(

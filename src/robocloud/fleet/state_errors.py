@@ -22,12 +22,12 @@ import zenoh
 
 from robocloud.errors import InvalidInput, describe_validation_errors
 from robocloud.fleet import keys
-from robocloud.fleet.messages import State, StateError
+from robocloud.fleet.messages import MAX_BATCH_STATES, State, StateError
 
 logger = logging.getLogger("robocloud.fleet.link")
 
 MAX_STATE_BYTES = 64 * 1024  # a state of a robot with 100 capabilities is about 8 KiB
-MAX_BATCH_STATES = 10_000  # states in one gateway batch
+__all__ = ["MAX_BATCH_STATES", "StateErrors"]
 MAX_BATCH_BYTES = 16 * 1024 * 1024  # one gateway batch
 ANSWER_EVERY = 1.0  # seconds between two answers to one robot
 MAX_ANSWERS_PER_S = 200  # answers to all robots together

@@ -171,3 +171,24 @@ def test_a_gateway_needs_a_key_chunk_and_a_sane_batch_size() -> None:
         FleetSimulator(CLOUD, robots, session=None, gateway="g", batch_size=0)  # type: ignore[arg-type]
     assert keys.batch_key(CLOUD, "g") == "robocloud/cloud-g/fleets/g/states"
     assert keys.all_batches(CLOUD) == "robocloud/cloud-g/fleets/*/states"
+
+
+def test_another_cloud_follows_a_borrowed_robot_behind_a_gateway(
+    cloud: tuple[zenoh.Session, zenoh.Session, ZenohRobotLink, FleetSimulator],
+) -> None:
+    from robocloud.federation.overlay import ZenohOverlay
+    from robocloud.fleet import MemoryRobotLink
+    from robocloud.iaas.home import Home
+    from robocloud.storage import MemoryRequestStore
+
+    router, _, _, simulator = cloud
+    home = Home("cloud-w", MemoryRequestStore(), MemoryRobotLink("cloud-w"))
+    overlay = ZenohOverlay(router, "cloud-w", home)
+    try:
+        borrowed = simulator.robot_ids[3]
+        overlay.watch(CLOUD, borrowed)
+        assert wait_until(lambda: borrowed in overlay.states(), timeout=5)
+        assert set(overlay.states()) == {borrowed}  # only the watched one of the batches
+        overlay.unwatch(CLOUD, borrowed)
+    finally:
+        overlay.close()

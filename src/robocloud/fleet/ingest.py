@@ -19,6 +19,7 @@ msgspec writes a batch of them in a few microseconds per state.
 from __future__ import annotations
 
 import math
+from collections.abc import Container
 from dataclasses import dataclass
 from typing import Annotated, Any, Literal
 
@@ -137,12 +138,17 @@ class StateReader:
         return state if state is not None else self._slow(payload)
 
     def read_batch(
-        self, payload: bytes, max_state_bytes: int = 64 * 1024
+        self,
+        payload: bytes,
+        max_state_bytes: int = 64 * 1024,
+        only: Container[str] | None = None,
     ) -> tuple[list[State], list[Refusal]]:
         """The states of a batch (a JSON array of states), and the refusals of bad ones.
 
         A bad state costs only itself: the others of the batch are read. A
         payload that is not an array at all is one refusal naming no robot.
+        With ``only``, the states of other robots are skipped unread (by their
+        ``id`` alone), neither kept nor refused.
         """
         try:
             items = _BATCH_DECODER.decode(payload)
@@ -153,6 +159,8 @@ class StateReader:
         refusals: list[Refusal] = []
         for item in items:
             raw = bytes(item)
+            if only is not None and robot_named(raw) not in only:
+                continue
             if len(raw) > max_state_bytes:
                 sentence = f"the state is {len(raw)} bytes; at most {max_state_bytes} are accepted."
                 refusals.append(Refusal(robot_named(raw), "state", sentence))

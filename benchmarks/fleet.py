@@ -15,6 +15,7 @@ gateways). For each size, a fresh IaaS and simulator:
 - POST-to-dispatched: ``DISPATCHES`` sequential requests (a grabber and a
   sound sensor near the middle of the forest), each canceled once dispatched;
   the client's time from sending the POST to the event saying dispatched.
+  No new request after ``DISPATCH_FOR`` seconds.
 
 Run alone: ``python -m benchmarks.fleet --sizes 5000,20000`` (``--per-robot``
 for the old way, ``--src DIR`` to run the processes from another checkout,
@@ -25,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import json
 import os
 import secrets
 import statistics
@@ -39,7 +41,7 @@ import httpx
 import numpy as np
 
 from benchmarks.report import Column, Goal, SectionReport, Table, render_text
-from benchmarks.service import _port, post_to_dispatched
+from benchmarks.service import TASK, _at, _port
 
 SIZES = (5_000, 20_000, 50_000)
 QUICK_SIZES = (5_000,)
@@ -47,6 +49,7 @@ GIVE_UP = 120.0  # seconds to wait for a fleet to join
 SETTLE = 3.0  # seconds between the join and the CPU window
 CPU_WINDOW = 10.0
 DISPATCHES = 30
+DISPATCH_FOR = 90.0  # seconds at most for the requests of one size
 CLOUD = "cloud-a"
 _TICK = os.sysconf("SC_CLK_TCK")
 
@@ -80,6 +83,39 @@ def _count(client: httpx.Client) -> int:
     except httpx.TransportError:
         return -1
     return int(answer.json()["robots"]) if answer.status_code == 200 else -1
+
+
+def post_to_dispatched(url: str, key: str, count: int, limit: float) -> dict[str, Any]:
+    """Up to ``count`` sequential requests, each canceled once dispatched, for ``limit`` s at most.
+
+    As ``benchmarks.service.post_to_dispatched``, bounded in time: a fleet
+    where a request takes seconds still ends.
+    """
+    client_ms: list[float] = []
+    server_ms: list[float] = []
+    sent = 0
+    headers = {"Authorization": f"Bearer {key}"}
+    deadline = time.monotonic() + limit
+    with httpx.Client(base_url=url, headers=headers, timeout=30) as client:
+        while sent < count and time.monotonic() < deadline:
+            started = time.perf_counter()
+            body = {**TASK, "label": f"fleet bench {sent}"}
+            rid = client.post("/v1/requests", json=body).json()["id"]
+            sent += 1
+            state = None
+            with client.stream("GET", f"/v1/requests/{rid}/events") as events:
+                for line in events.iter_lines():
+                    if line.startswith("data:"):
+                        state = json.loads(line[5:])
+                        if state["state"] not in ("received", "selecting"):
+                            break
+            elapsed = (time.perf_counter() - started) * 1000
+            if state is not None and state["state"] in ("dispatched", "underway"):
+                client_ms.append(elapsed)
+                at = {h["state"]: _at(h["at"]) for h in state["history"] if h["kind"] == "state"}
+                server_ms.append((at["dispatched"] - at["received"]) * 1000)
+                client.post(f"/v1/requests/{rid}/cancel")
+    return {"client": client_ms, "server": server_ms, "sent": sent}
 
 
 def one_size(
@@ -137,7 +173,7 @@ def one_size(
         row["heard"] = _count(client)
         if seen > 0 and dispatches > 0:
             try:
-                got = post_to_dispatched(url, key, dispatches)
+                got = post_to_dispatched(url, key, dispatches, DISPATCH_FOR)
             except (httpx.HTTPError, AssertionError, KeyError) as error:
                 print(f"  {n}: the dispatches failed: {error}", file=sys.stderr, flush=True)
                 got = {"client": [], "server": [], "sent": dispatches}

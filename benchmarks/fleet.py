@@ -231,8 +231,10 @@ def measure(
         goals.append(
             Goal(
                 "IaaS under 50% of a core at 1 Hz (50,000 robots)",
-                f"{biggest['iaas_cpu']:.0f}%",
-                biggest["iaas_cpu"] < 50.0,
+                f"{biggest['iaas_cpu']:.0f}%"
+                + ("" if join is not None else f" with only {biggest['joined']} robots"),
+                # Not judged when the fleet did not join: fewer robots cost less.
+                biggest["iaas_cpu"] < 50.0 if join is not None else None,
                 f"{50.0 - biggest['iaas_cpu']:+.0f} points",
             )
         )

@@ -257,7 +257,8 @@ class Agv:
         battery = self.vda.batteryState.batteryCharge
         if battery < caps.min_battery:
             return (
-                f"{who}'s battery ({battery:.1f}%) is below the {caps.min_battery:g}% a task needs."
+                f"{who}'s battery ({battery:.1f}%) is below the {caps.min_battery:g}% "
+                "a task needs."
             )
         if self.position is None:
             return f"{who} has not reported where it is."
@@ -341,10 +342,8 @@ class Agv:
             return "offline"
         if self.job is not None:
             return "busy"
-        if (
-            vda.nodeStates
-            or vda.edgeStates
-            or any(a.actionStatus in UNDER_WAY for a in vda.actionStates)
+        if vda.nodeStates or vda.edgeStates or any(
+            a.actionStatus in UNDER_WAY for a in vda.actionStates
         ):
             return "busy"
         if vda.batteryState.charging:

@@ -82,7 +82,9 @@ def add_vda5050_arguments(parser: argparse.ArgumentParser) -> None:
 def mqtt_address(text: str) -> tuple[str, int]:
     host, sep, port = text.rpartition(":")
     if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
-        raise InvalidInput(f"--mqtt {text!r} is not HOST:PORT, e.g. {DEFAULT_MQTT}.", "--mqtt")
+        raise InvalidInput(
+            f"--mqtt {text!r} is not HOST:PORT, e.g. {DEFAULT_MQTT}.", "--mqtt"
+        )
     return host.strip("[]"), int(port)
 
 

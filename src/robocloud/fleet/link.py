@@ -109,6 +109,10 @@ class LatestStates:
         # while the robot's states say the same (see ``robots``).
         self._robots: dict[str, Robot] = {}
         self._order: list[str] | None = None  # the ids, sorted; None when to sort again
+        # The last list of robots() and until when it holds; None when a robot
+        # joined, changed, came back or was forgotten since.
+        self._listed: list[Robot] | None = None
+        self._listed_until = 0.0
 
     def accept(self, state: State) -> bool:
         """Keep ``state`` if it is newer than the one held; tell the listeners.
@@ -167,8 +171,13 @@ class LatestStates:
                 return False
         if held is None:
             self._order = None  # a new robot: the sorted ids are made again
-        elif state.id in self._robots and not _same_robot(held, state):
-            del self._robots[state.id]  # its Robot is made again when asked for
+            self._listed = None
+        else:
+            if state.id in self._robots and not _same_robot(held, state):
+                del self._robots[state.id]  # its Robot is made again when asked for
+                self._listed = None
+            elif now - self._received[state.id] > self.offline_after:
+                self._listed = None  # back from silence: listed online again
         self._states[state.id] = state
         self._received[state.id] = now
         return True
@@ -182,6 +191,7 @@ class LatestStates:
             self._robots.pop(rid, None)
         if gone:
             self._order = None
+            self._listed = None
             self._refused = 0
             logger.info("forgot %d robots silent for over %.0f s", len(gone), self.forget_after)
 
@@ -207,25 +217,42 @@ class LatestStates:
         """Every robot by id; a Robot is made only for a state that changed what it says.
 
         A state at 1 Hz mostly repeats the robot (only ``seq`` and
-        ``sent_at`` move): its Robot is kept, and the sorted order of ids is
-        kept until a robot joins or is forgotten, so a selection over 50,000
-        robots costs one pass, not 50,000 models.
+        ``sent_at`` move): its Robot is kept, and so is the whole sorted list
+        until a robot joins, changes, falls silent or comes back, or is
+        forgotten. A selection over 50,000 idle robots then copies a list
+        instead of visiting 50,000 robots.
         """
         now = self.clock()
-        stale_before = now - self.offline_after
         with self._lock:
-            order = self._order
-            if order is None:
-                order = self._order = sorted(self._states)
-            states, received, made = self._states, self._received, self._robots
-            robots = []
-            for rid in order:
-                robot = made.get(rid)
-                if robot is None:
-                    robot = made[rid] = states[rid].to_robot()
-                if received[rid] < stale_before and robot.status != "offline":
+            if self._listed is None or now >= self._listed_until:
+                self._listed = self._list(now)
+            return list(self._listed)
+
+    def _list(self, now: float) -> list[Robot]:
+        """The robots, sorted by id, as of ``now`` (the caller holds the lock).
+
+        Sets ``_listed_until``: when the first robot listed online would fall
+        silent if it sent nothing more (a state only moves that later).
+        """
+        order = self._order
+        if order is None:
+            order = self._order = sorted(self._states)
+        states, received, made = self._states, self._received, self._robots
+        stale_before = now - self.offline_after
+        oldest_online = now
+        robots = []
+        for rid in order:
+            robot = made.get(rid)
+            if robot is None:
+                robot = made[rid] = states[rid].to_robot()
+            at = received[rid]
+            if at < stale_before:
+                if robot.status != "offline":
                     robot = robot.model_copy(update={"status": "offline"})
-                robots.append(robot)
+            elif at < oldest_online:
+                oldest_online = at
+            robots.append(robot)
+        self._listed_until = oldest_online + self.offline_after
         return robots
 
     def add_listener(self, listener: StateListener) -> Callable[[], None]:

@@ -161,6 +161,18 @@ def test_latest_states_keep_a_robot_while_its_states_repeat_it() -> None:
     again = latest.robots()
     assert again[0] is not first[0] and again[0].battery == 50.0
     assert again[1] is first[1]
-    now[0] = 10.0  # silent too long: offline, without changing what is kept
+    listed = latest.robots()
+    listed.clear()  # a copy: the next caller still gets every robot
+    assert latest.robots() == again
+    now[0] = 4.9
+    assert {r.status for r in latest.robots()} == {"busy"}
+    now[0] = 5.1  # silent too long: offline, without changing what is kept
     assert {r.status for r in latest.robots()} == {"offline"}
     assert latest.count() == 2
+    accept(id="a-2", seq=9, sent_at=3e9)  # back: online again at once
+    assert [r.status for r in latest.robots()] == ["offline", "busy"]
+    now[0] = 9.0
+    accept(id="a-1", seq=9, sent_at=3e9)
+    assert [r.status for r in latest.robots()] == ["busy", "busy"]
+    now[0] = 10.2  # a-2 last heard at 5.1: silent for over 5 s
+    assert [r.status for r in latest.robots()] == ["busy", "offline"]

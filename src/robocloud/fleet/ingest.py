@@ -82,6 +82,7 @@ _DECODER = msgspec.json.Decoder(WireState)
 _CAPABILITIES_DECODER = msgspec.json.Decoder(dict[_Name, WireCapability])
 _ID_DECODER = msgspec.json.Decoder(_Id)
 _BATCH_DECODER = msgspec.json.Decoder(list[msgspec.Raw])
+_STATES_DECODER = msgspec.json.Decoder(list[WireState])
 _ENCODER = msgspec.json.Encoder()
 _MAX_REMEMBERED = 200_000  # names and capability sets kept, whatever robots send
 
@@ -150,6 +151,10 @@ class StateReader:
         With ``only``, the states of other robots are skipped unread (by their
         ``id`` alone), neither kept nor refused.
         """
+        if only is None:
+            fast = self._fast_batch(payload, max_state_bytes)
+            if fast is not None:
+                return fast, []
         try:
             items = _BATCH_DECODER.decode(payload)
         except msgspec.DecodeError as error:
@@ -171,6 +176,36 @@ class StateReader:
             else:
                 states.append(read)
         return states, refusals
+
+    def _fast_batch(self, payload: bytes, max_state_bytes: int) -> list[State] | None:
+        """Every state of a batch in one msgspec call; None when any needs a closer look.
+
+        The common case: a gateway's batch of valid states. A batch with one
+        bad state (or one the light checks send to pydantic, or one that may
+        be over ``max_state_bytes``) is read again state by state, so each
+        gets its own verdict.
+        """
+        try:
+            wires = _STATES_DECODER.decode(payload)
+        except msgspec.DecodeError:
+            return None
+        # Other fields are short (names of at most 128 characters): only these
+        # can make a state large.
+        large = max_state_bytes // 2
+        many = max_state_bytes // 1024
+        states = []
+        for wire in wires:
+            if (
+                len(wire.capabilities) > large
+                or (wire.task is not None and len(wire.task.capabilities) > many)
+                or (wire.last_task is not None and len(wire.last_task.capabilities) > many)
+            ):
+                return None
+            state = self._model(wire)
+            if state is None:
+                return None
+            states.append(state)
+        return states
 
     def _slow(self, payload: bytes) -> State | Refusal:
         try:

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks import federation, selection, service, soak, throughput
+from benchmarks import federation, fleet, selection, service, soak, throughput
 from benchmarks.report import SectionReport, render_markdown, render_text, write_csv
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -37,6 +37,7 @@ SECTIONS: list[Section] = [
     Section("soak", soak.run),
     Section("federation", federation.run),
     Section("throughput", throughput.run),
+    Section("fleet", fleet.run),
 ]
 
 

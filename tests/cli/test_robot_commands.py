@@ -76,6 +76,7 @@ GATEWAY = ["vda5050", "--cloud", "cloud-a", "--connect", "tcp/127.0.0.1:17998"]
         (["--interface", "a/b"], "--interface 'a/b' must be one MQTT topic level"),
         (["--capabilities", "/no/such.json"], "/no/such.json: no such file."),
         (["--connect-timeout", "-1"], "--connect-timeout must be 0 to 3600 s"),
+        (["--gateway-name", "a/b"], "--gateway-name 'a/b' cannot be used in a Zenoh key"),
     ],
 )
 def test_vda5050_refuses_wrong_arguments(

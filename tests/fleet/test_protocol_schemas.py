@@ -12,7 +12,7 @@ import pydantic
 import pytest
 
 from robocloud.fleet import schemas
-from robocloud.fleet.messages import COMMAND, PROTOCOL_VERSION, Ack, State, StateError
+from robocloud.fleet.messages import COMMAND, PROTOCOL_VERSION, STATES, Ack, State, StateError
 
 DOCS = Path(__file__).parents[2] / "docs" / "protocol"
 
@@ -45,12 +45,13 @@ def changed(message: dict[str, Any], path: str, value: Any) -> dict[str, Any]:
     return out
 
 
-def model_accepts(name: str, message: dict[str, Any]) -> bool:
+def model_accepts(name: str, message: Any) -> bool:
     validate = {
         "state": State.model_validate_json,
         "command": COMMAND.validate_json,
         "ack": Ack.model_validate_json,
         "error": StateError.model_validate_json,
+        "states": STATES.validate_json,
     }[name]
     try:
         validate(json.dumps(message))
@@ -59,7 +60,7 @@ def model_accepts(name: str, message: dict[str, Any]) -> bool:
     return True
 
 
-def schema_accepts(name: str, message: dict[str, Any]) -> bool:
+def schema_accepts(name: str, message: Any) -> bool:
     validator = jsonschema_rs.validator_for(schemas.protocol_schema(name))
     return bool(validator.is_valid(message))
 
@@ -137,6 +138,10 @@ CASES = [
     ("ack", changed(ACK, "request_id", None), True),
     ("ack", changed(ACK, "ok", ...), False),
     ("ack", changed(ACK, "robot", ...), False),
+    ("states", [STATE, changed(STATE, "id", "a-0002")], True),
+    ("states", [], True),
+    ("states", [STATE, changed(STATE, "battery", 100.5)], False),
+    ("states", STATE, False),
     ("error", ERROR, True),
     ("error", changed(ERROR, "field", ...), False),
 ]  # fmt: skip
@@ -144,7 +149,7 @@ CASES = [
 
 @pytest.mark.parametrize(("name", "message", "valid"), CASES)
 def test_the_schema_accepts_what_the_model_accepts(
-    name: str, message: dict[str, Any], valid: bool
+    name: str, message: Any, valid: bool
 ) -> None:
     assert model_accepts(name, message) is valid
     assert schema_accepts(name, message) is valid

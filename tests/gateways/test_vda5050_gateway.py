@@ -21,7 +21,12 @@ from vda5050_vehicle import Vehicle
 from robocloud.fleet import Assign, ZenohRobotLink, open_client, open_router
 from robocloud.gateways.vda5050.capabilities import GatewayCapabilities
 from robocloud.gateways.vda5050.gateway import Vda5050Gateway
-from robocloud.gateways.vda5050.zenoh_side import ZenohRobots
+from robocloud.gateways.vda5050.zenoh_side import (
+    CommandHandler,
+    RobotSide,
+    ZenohFleet,
+    ZenohRobots,
+)
 
 pytestmark = pytest.mark.slow
 
@@ -42,14 +47,22 @@ def wait_until(predicate: Callable[[], Any], timeout: float = 10.0) -> Any:
 
 @pytest.fixture
 def world(
-    mosquitto: tuple[str, int], interface: str, free_port: int
+    mosquitto: tuple[str, int], interface: str, free_port: int, request: pytest.FixtureRequest
 ) -> Iterator[tuple[ZenohRobotLink, Vda5050Gateway, list[Vehicle]]]:
     endpoint = f"tcp/127.0.0.1:{free_port}"
     router = open_router([endpoint])
     link = ZenohRobotLink(router, "cloud-a", command_timeout=2.0)
     session = open_client([endpoint], timeout=5.0)
+    # "fleet": the AGVs behind one wildcard queryable, their states in batches.
+    fleet = getattr(request, "param", "robots") == "fleet"
+
+    def robot_side(on_command: CommandHandler) -> RobotSide:
+        if fleet:
+            return ZenohFleet(session, "cloud-a", "vda", on_command)
+        return ZenohRobots(session, "cloud-a", on_command)
+
     gateway = Vda5050Gateway(
-        lambda on_command: ZenohRobots(session, "cloud-a", on_command),
+        robot_side,
         *mosquitto,
         CAPS,
         interface=interface,
@@ -96,6 +109,7 @@ def join(world: tuple[ZenohRobotLink, Vda5050Gateway, list[Vehicle]], interface:
     return robot, vehicle
 
 
+@pytest.mark.parametrize("world", ["robots", "fleet"], indirect=True)
 def test_an_agv_joins_takes_a_task_and_finishes_it(
     world: tuple[ZenohRobotLink, Vda5050Gateway, list[Vehicle]], interface: str
 ) -> None:

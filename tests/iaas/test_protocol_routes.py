@@ -34,6 +34,7 @@ def test_the_protocol_page_tells_the_version_keys_and_this_clouds_timing() -> No
         "state": "robocloud/cloud-a/robots/<id>/state",
         "cmd": "robocloud/cloud-a/robots/<id>/cmd",
         "error": "robocloud/cloud-a/robots/<id>/error",
+        "states": "robocloud/cloud-a/fleets/<gateway>/states",
     }
     assert info["timing"] == {
         "state_every": 1.0,
@@ -41,7 +42,7 @@ def test_the_protocol_page_tells_the_version_keys_and_this_clouds_timing() -> No
         "offline_after": 4.0,
         "forget_after": 600.0,
     }
-    assert set(info["schemas"]) == {"state", "command", "ack", "error"}
+    assert set(info["schemas"]) == {"state", "command", "ack", "error", "states"}
 
 
 def test_each_served_schema_is_the_checked_in_file() -> None:

@@ -48,6 +48,7 @@ from robocloud.federation.messages import (
     StatusReply,
 )
 from robocloud.fleet import keys as robot_keys
+from robocloud.fleet.ingest import StateReader
 from robocloud.fleet.link import LatestStates, StateListener
 from robocloud.fleet.messages import Ack, State
 
@@ -177,6 +178,12 @@ class ZenohOverlay:
         self._pool = ThreadPoolExecutor(8, thread_name_prefix=f"overlay-{cloud}")
         self._watched = LatestStates("*", offline_after, clock)
         self._subscribers: dict[str, Any] = {}
+        # Robots behind a fleet gateway send no state on their own key: while
+        # any robot of a cloud is watched, that cloud's batches are read too,
+        # keeping the states of the watched robots only.
+        self._watched_ids: dict[str, set[str]] = {}  # cloud -> robot ids
+        self._batch_subscribers: dict[str, Any] = {}  # cloud -> subscriber
+        self._reader = StateReader()
         self._lock = threading.Lock()
         handlers = desk_handlers(desk)
         self._desk = desk
@@ -293,13 +300,28 @@ class ZenohOverlay:
             if key in self._subscribers:
                 return
             self._subscribers[key] = self._session.declare_subscriber(key, self._on_sample)
+            self._watched_ids.setdefault(cloud, set()).add(robot_id)
+            if cloud not in self._batch_subscribers:
+                self._batch_subscribers[cloud] = self._session.declare_subscriber(
+                    robot_keys.all_batches(cloud),
+                    lambda sample: self._on_batch(cloud, sample),
+                )
 
     def unwatch(self, cloud: str, robot_id: str) -> None:
         key = robot_keys.state_key(cloud, robot_id)
+        batches = None
         with self._lock:
             subscriber = self._subscribers.pop(key, None)
+            ids = self._watched_ids.get(cloud)
+            if ids is not None:
+                ids.discard(robot_id)
+                if not ids:
+                    del self._watched_ids[cloud]
+                    batches = self._batch_subscribers.pop(cloud, None)
         if subscriber is not None:
             subscriber.undeclare()
+        if batches is not None:
+            batches.undeclare()
 
     def ages(self) -> dict[str, float]:
         return self._watched.ages()
@@ -317,6 +339,8 @@ class ZenohOverlay:
             queryable.undeclare()  # type: ignore[no-untyped-call]
         with self._lock:
             subscribers, self._subscribers = list(self._subscribers.values()), {}
+            subscribers += self._batch_subscribers.values()
+            self._batch_subscribers, self._watched_ids = {}, {}
         for subscriber in subscribers:
             subscriber.undeclare()
         self._pool.shutdown(wait=False, cancel_futures=True)
@@ -396,3 +420,14 @@ class ZenohOverlay:
         # b-2's key would otherwise pass for a-1's).
         if robot_keys.robot_of(str(sample.key_expr)) == state.id:
             self._watched.accept(state)
+
+    def _on_batch(self, cloud: str, sample: zenoh.Sample) -> None:
+        """A gateway's batch of ``cloud``: the states of the robots watched there."""
+        if sample.kind != zenoh.SampleKind.PUT:
+            return
+        with self._lock:
+            wanted = set(self._watched_ids.get(cloud, ()))
+        if not wanted:
+            return
+        states, _ = self._reader.read_batch(sample.payload.to_bytes(), only=wanted)
+        self._watched.accept_many(s for s in states if s.cloud == cloud)

@@ -5,6 +5,8 @@
     robocloud/<cloud>/robots/<id>/state   each robot publishes its State (JSON)
     robocloud/<cloud>/robots/<id>/cmd     the IaaS queries it with a Command; the reply is an Ack
     robocloud/<cloud>/robots/<id>/error   the IaaS publishes a StateError for a state it refused
+    robocloud/<cloud>/fleets/<gw>/states  a gateway publishes its robots' states in batches
+                                          (a JSON array of States)
     robocloud/<cloud>/sim/<pid>           liveliness token of a running fleet simulator
     robocloud/<cloud>/sim/control         queryable of the simulator for fault injection
 
@@ -55,6 +57,20 @@ def all_states(cloud: str) -> str:
 
 def all_cmds(cloud: str) -> str:
     return f"{robots_prefix(cloud)}/*/cmd"
+
+
+def fleets_prefix(cloud: str) -> str:
+    return f"{ROOT}/{check_chunk(cloud, 'cloud')}/fleets"
+
+
+def batch_key(cloud: str, gateway: str) -> str:
+    """Where a gateway (a process fronting many robots) publishes their states in batches."""
+    return f"{fleets_prefix(cloud)}/{check_chunk(gateway, 'gateway')}/states"
+
+
+def all_batches(cloud: str) -> str:
+    """Every gateway's batch key of ``cloud``."""
+    return f"{fleets_prefix(cloud)}/*/states"
 
 
 def robot_of(key: str) -> str | None:

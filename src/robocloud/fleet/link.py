@@ -15,7 +15,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from typing import Protocol
 
 import pydantic
@@ -24,8 +24,14 @@ import zenoh
 from robocloud.domain import Robot
 from robocloud.errors import Unavailable
 from robocloud.fleet import keys
+from robocloud.fleet.ingest import Refusal, StateReader
 from robocloud.fleet.messages import Ack, Assign, Cancel, State
-from robocloud.fleet.state_errors import MAX_STATE_BYTES, StateErrors
+from robocloud.fleet.state_errors import (
+    MAX_BATCH_BYTES,
+    MAX_BATCH_STATES,
+    MAX_STATE_BYTES,
+    StateErrors,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -99,10 +105,14 @@ class LatestStates:
         self._states: dict[str, State] = {}
         self._received: dict[str, float] = {}
         self._listeners: list[StateListener] = []
-        # The Robot of each held state, made once per state: a selection asks
-        # for every robot of the cloud, and building 1,000 of them each time
-        # cost more than the selection itself.
-        self._robots: dict[str, tuple[State, Robot]] = {}
+        # The Robot of each held state, made when first asked for and kept
+        # while the robot's states say the same (see ``robots``).
+        self._robots: dict[str, Robot] = {}
+        self._order: list[str] | None = None  # the ids, sorted; None when to sort again
+        # The last list of robots() and until when it holds; None when a robot
+        # joined, changed, came back or was forgotten since.
+        self._listed: list[Robot] | None = None
+        self._listed_until = 0.0
 
     def accept(self, state: State) -> bool:
         """Keep ``state`` if it is newer than the one held; tell the listeners.
@@ -111,43 +121,65 @@ class LatestStates:
         robot is refused while ``max_fleet`` robots are known: whatever ids
         clients publish, memory stays bounded.
         """
+        return self.accept_many([state]) == 1
+
+    def accept_many(self, states: Iterable[State]) -> int:
+        """``accept`` for several states under one lock (a gateway's batch); how many were kept."""
         now = self.clock()
+        kept: list[State] = []
         with self._lock:
             if now - self._pruned_at > min(10.0, self.forget_after / 10):
                 self._forget_silent(now)
-            held = self._states.get(state.id)
-            # A smaller seq sent later is a restarted robot; otherwise an old
-            # or repeated message.
-            if held is not None and state.seq <= held.seq and state.sent_at <= held.sent_at:
-                return False
-            if held is None and len(self._states) >= self.max_fleet:
-                self._forget_silent(now)
-                if len(self._states) >= self.max_fleet:
-                    self._refused += 1
-                    if self._refused == 1 or self._refused % 1000 == 0:
-                        logger.warning(
-                            "%s already follows %d robots, the most it takes; "
-                            "ignoring robot %s (%d refused so far)",
-                            self.cloud,
-                            self.max_fleet,
-                            state.id,
-                            self._refused,
-                        )
-                    return False
-            self._states[state.id] = state
-            self._received[state.id] = now
-            listeners = list(self._listeners)
+            for state in states:
+                if self._keep(state, now):
+                    kept.append(state)
+            listeners = list(self._listeners) if kept else []
         for listener in listeners:
-            try:
-                listener(state)
-            except Unavailable as error:
-                # A store that is down fails every state for a while: say it
-                # once every few seconds, without a traceback.
-                if now - self._unavailable_said > 5.0:
-                    self._unavailable_said = now
-                    logger.warning("a robot state listener could not go on: %s", error)
-            except Exception:
-                logger.exception("a robot state listener failed")
+            for state in kept:
+                try:
+                    listener(state)
+                except Unavailable as error:
+                    # A store that is down fails every state for a while: say it
+                    # once every few seconds, without a traceback.
+                    if now - self._unavailable_said > 5.0:
+                        self._unavailable_said = now
+                        logger.warning("a robot state listener could not go on: %s", error)
+                except Exception:
+                    logger.exception("a robot state listener failed")
+        return len(kept)
+
+    def _keep(self, state: State, now: float) -> bool:
+        """Hold ``state`` if it is newer (the caller holds the lock)."""
+        held = self._states.get(state.id)
+        # A smaller seq sent later is a restarted robot; otherwise an old
+        # or repeated message.
+        if held is not None and state.seq <= held.seq and state.sent_at <= held.sent_at:
+            return False
+        if held is None and len(self._states) >= self.max_fleet:
+            self._forget_silent(now)
+            if len(self._states) >= self.max_fleet:
+                self._refused += 1
+                if self._refused == 1 or self._refused % 1000 == 0:
+                    logger.warning(
+                        "%s already follows %d robots, the most it takes; "
+                        "ignoring robot %s (%d refused so far)",
+                        self.cloud,
+                        self.max_fleet,
+                        state.id,
+                        self._refused,
+                    )
+                return False
+        if held is None:
+            self._order = None  # a new robot: the sorted ids are made again
+            self._listed = None
+        else:
+            if state.id in self._robots and not _same_robot(held, state):
+                del self._robots[state.id]  # its Robot is made again when asked for
+                self._listed = None
+            elif now - self._received[state.id] > self.offline_after:
+                self._listed = None  # back from silence: listed online again
+        self._states[state.id] = state
+        self._received[state.id] = now
         return True
 
     def _forget_silent(self, now: float) -> None:
@@ -158,6 +190,8 @@ class LatestStates:
             del self._states[rid], self._received[rid]
             self._robots.pop(rid, None)
         if gone:
+            self._order = None
+            self._listed = None
             self._refused = 0
             logger.info("forgot %d robots silent for over %.0f s", len(gone), self.forget_after)
 
@@ -169,24 +203,56 @@ class LatestStates:
         with self._lock:
             return self._states.get(robot_id)
 
+    def count(self) -> int:
+        """How many robots are heard from (without building them)."""
+        with self._lock:
+            return len(self._states)
+
     def ages(self) -> dict[str, float]:
         now = self.clock()
         with self._lock:
             return {rid: now - at for rid, at in self._received.items()}
 
     def robots(self) -> list[Robot]:
+        """Every robot by id; a Robot is made only for a state that changed what it says.
+
+        A state at 1 Hz mostly repeats the robot (only ``seq`` and
+        ``sent_at`` move): its Robot is kept, and so is the whole sorted list
+        until a robot joins, changes, falls silent or comes back, or is
+        forgotten. A selection over 50,000 idle robots then copies a list
+        instead of visiting 50,000 robots.
+        """
         now = self.clock()
         with self._lock:
-            pairs = [(s, now - self._received[rid]) for rid, s in self._states.items()]
+            if self._listed is None or now >= self._listed_until:
+                self._listed = self._list(now)
+            return list(self._listed)
+
+    def _list(self, now: float) -> list[Robot]:
+        """The robots, sorted by id, as of ``now`` (the caller holds the lock).
+
+        Sets ``_listed_until``: when the first robot listed online would fall
+        silent if it sent nothing more (a state only moves that later).
+        """
+        order = self._order
+        if order is None:
+            order = self._order = sorted(self._states)
+        states, received, made = self._states, self._received, self._robots
+        stale_before = now - self.offline_after
+        oldest_online = now
         robots = []
-        for state, age in sorted(pairs, key=lambda pair: pair[0].id):
-            cached = self._robots.get(state.id)
-            if cached is None or cached[0] is not state:
-                cached = self._robots[state.id] = (state, state.to_robot())
-            robot = cached[1]
-            if age > self.offline_after and robot.status != "offline":
-                robot = robot.model_copy(update={"status": "offline"})
+        for rid in order:
+            robot = made.get(rid)
+            if robot is None:
+                robot = made[rid] = states[rid].to_robot()
+            at = received[rid]
+            if at < stale_before:
+                if robot.status != "offline":
+                    robot = robot.model_copy(update={"status": "offline"})
+            elif at < oldest_online:
+                oldest_online = at
             robots.append(robot)
+        self._listed_until = oldest_online + self.offline_after
         return robots
 
     def add_listener(self, listener: StateListener) -> Callable[[], None]:
@@ -199,6 +265,19 @@ class LatestStates:
                     self._listeners.remove(listener)
 
         return remove
+
+
+def _same_robot(a: State, b: State) -> bool:
+    """Whether two states of one robot describe the same MODEL.md robot."""
+    return (
+        a.status == b.status
+        and a.battery == b.battery
+        and a.position == b.position
+        and a.speed == b.speed
+        and a.travel_cost_per_m == b.travel_cost_per_m
+        and a.cloud == b.cloud
+        and (a.capabilities is b.capabilities or a.capabilities == b.capabilities)
+    )
 
 
 class ZenohRobotLink:
@@ -225,7 +304,9 @@ class ZenohRobotLink:
         self._timeout = command_timeout
         self._latest = LatestStates(cloud, offline_after, clock, forget_after, max_fleet)
         self._errors = StateErrors(session, self._cloud)
+        self._reader = StateReader()
         self._subscriber = session.declare_subscriber(keys.all_states(cloud), self._on_sample)
+        self._batches = session.declare_subscriber(keys.all_batches(cloud), self._on_batch)
 
     @property
     def cloud(self) -> str:
@@ -252,8 +333,13 @@ class ZenohRobotLink:
     def cancel(self, robot_id: str, request_id: str) -> Ack:
         return self._command(robot_id, Cancel(request_id=request_id))
 
+    def count(self) -> int:
+        """How many robots are heard from."""
+        return self._latest.count()
+
     def close(self) -> None:
         self._subscriber.undeclare()  # type: ignore[no-untyped-call]
+        self._batches.undeclare()  # type: ignore[no-untyped-call]
 
     def __enter__(self) -> ZenohRobotLink:
         return self
@@ -303,12 +389,51 @@ class ZenohRobotLink:
         if len(payload) > MAX_STATE_BYTES:
             self._errors.too_large(key, len(payload))
             return
-        try:
-            state = State.model_validate_json(payload)
-        except pydantic.ValidationError as error:
-            self._errors.invalid(key, error)
+        read = self._reader.read(payload)
+        if isinstance(read, Refusal):
+            self._errors.refuse(key, read.field, read.sentence)
             return
-        if state.cloud != self._cloud or state.id != keys.robot_of(key):
-            self._errors.mismatch(key, state)
+        if read.cloud != self._cloud or read.id != keys.robot_of(key):
+            self._errors.mismatch(key, read)
             return
-        self._latest.accept(state)
+        self._latest.accept(read)
+
+    def _on_batch(self, sample: zenoh.Sample) -> None:
+        """A gateway's batch: a JSON array of states of its robots (``keys.batch_key``)."""
+        if sample.kind != zenoh.SampleKind.PUT:
+            return
+        key = str(sample.key_expr)
+        payload = sample.payload.to_bytes()
+        if len(payload) > MAX_BATCH_BYTES:
+            self._errors.refuse(
+                key,
+                "states",
+                f"the batch is {len(payload)} bytes; at most {MAX_BATCH_BYTES} are accepted.",
+                robot="",
+            )
+            return
+        states, refusals = self._reader.read_batch(payload, MAX_STATE_BYTES)
+        if len(states) + len(refusals) > MAX_BATCH_STATES:
+            self._errors.refuse(
+                key,
+                "states",
+                f"the batch has {len(states) + len(refusals)} states; "
+                f"at most {MAX_BATCH_STATES} are accepted.",
+                robot="",
+            )
+            return
+        for refusal in refusals:
+            self._errors.in_batch(key, refusal.robot, refusal.field, refusal.sentence)
+        mine = []
+        for state in states:
+            if state.cloud != self._cloud:
+                self._errors.in_batch(
+                    key,
+                    state.id,
+                    "cloud",
+                    f"cloud: the state names cloud {state.cloud} but came on a key of "
+                    f"{self._cloud}.",
+                )
+            else:
+                mine.append(state)
+        self._latest.accept_many(mine)

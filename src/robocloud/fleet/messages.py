@@ -207,6 +207,14 @@ class Ack(BaseModel):
         return cls(ok=False, robot=robot, request_id=request_id, error=error)
 
 
+# A gateway's batch (robocloud/<cloud>/fleets/<gateway>/states): a JSON array
+# of States of the robots it fronts, at most this many in one message.
+MAX_BATCH_STATES = 10_000
+STATES: TypeAdapter[list[State]] = TypeAdapter(
+    Annotated[list[State], Field(max_length=MAX_BATCH_STATES)]
+)
+
+
 class StateError(BaseModel):
     """The IaaS's answer to a state it could not accept, on the robot's error key.
 

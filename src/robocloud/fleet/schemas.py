@@ -20,7 +20,7 @@ from typing import Any
 
 from pydantic import BaseModel, TypeAdapter
 
-from robocloud.fleet.messages import COMMAND, PROTOCOL_VERSION, Ack, State, StateError
+from robocloud.fleet.messages import COMMAND, PROTOCOL_VERSION, STATES, Ack, State, StateError
 
 DRAFT = "https://json-schema.org/draft/2020-12/schema"
 
@@ -29,6 +29,11 @@ MESSAGES: dict[str, tuple[type[BaseModel] | TypeAdapter[Any], str]] = {
     "state": (State, "a robot's state, published on robocloud/<cloud>/robots/<id>/state"),
     "command": (COMMAND, "the payload of a query on robocloud/<cloud>/robots/<id>/cmd"),
     "ack": (Ack, "the robot's one reply to a command, on its cmd key"),
+    "states": (
+        STATES,
+        "a fleet gateway's batch of its robots' states, published on "
+        "robocloud/<cloud>/fleets/<gateway>/states",
+    ),
     "error": (
         StateError,
         "the IaaS's answer to a refused state, on robocloud/<cloud>/robots/<id>/error",
@@ -139,9 +144,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     for problem in problems:
         print(problem, file=sys.stderr)
     if problems:
-        print(
-            f"run: python -m robocloud.fleet.schemas --write {args.check}", file=sys.stderr
-        )
+        print(f"run: python -m robocloud.fleet.schemas --write {args.check}", file=sys.stderr)
     return 1 if problems else 0
 
 

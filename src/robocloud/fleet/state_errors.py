@@ -20,17 +20,27 @@ from collections.abc import Callable
 import pydantic
 import zenoh
 
-from robocloud.errors import describe_validation_errors
+from robocloud.errors import InvalidInput, describe_validation_errors
 from robocloud.fleet import keys
-from robocloud.fleet.messages import State, StateError
+from robocloud.fleet.messages import MAX_BATCH_STATES, State, StateError
 
 logger = logging.getLogger("robocloud.fleet.link")
 
 MAX_STATE_BYTES = 64 * 1024  # a state of a robot with 100 capabilities is about 8 KiB
+__all__ = ["MAX_BATCH_STATES", "StateErrors"]
+MAX_BATCH_BYTES = 16 * 1024 * 1024  # one gateway batch
 ANSWER_EVERY = 1.0  # seconds between two answers to one robot
 MAX_ANSWERS_PER_S = 200  # answers to all robots together
 LOG_EVERY = 60.0  # seconds between two log lines for one robot's repeated fault
 MAX_TRACKED = 10_000  # robots whose last answer and log line are remembered
+
+
+def _chunk(value: str) -> bool:
+    try:
+        keys.check_chunk(value, "robot")
+    except InvalidInput:
+        return False
+    return True
 
 
 class StateErrors:
@@ -77,9 +87,17 @@ class StateErrors:
                 key, "id", f"id: the state names robot {state.id} but came on the key of {robot}."
             )
 
-    def refuse(self, key: str, field: str, sentence: str) -> None:
-        """Log and answer one refused state that came on ``key``."""
-        robot = keys.robot_of(key)
+    def refuse(self, key: str, field: str, sentence: str, robot: str | None = None) -> None:
+        """Log and answer one refused state that came on ``key``.
+
+        The answer goes to the robot of the key, or to ``robot`` for a state
+        of a gateway's batch (the robot its ``id`` names, when it can stand
+        in a key); none when neither is known.
+        """
+        if robot is None:
+            robot = keys.robot_of(key)
+        elif not _chunk(robot):
+            robot = None
         now = self._clock()
         with self._lock:
             log = self._due_log(key, sentence, now)
@@ -97,6 +115,11 @@ class StateErrors:
                 self.answers += 1
             except Exception as error:  # a closing session; the log has said it already
                 logger.debug("could not answer %s: %s", robot, error)
+
+    def in_batch(self, key: str, robot: str | None, field: str, sentence: str) -> None:
+        """A state of the batch on ``key`` was refused: its robot hears why, when it is named."""
+        where = f"{key} (robot {robot})" if robot is not None else key
+        self.refuse(where, field, sentence, robot=robot if robot is not None else "")
 
     def _due_log(self, key: str, sentence: str, now: float) -> bool:
         said = self._logged.get(key)

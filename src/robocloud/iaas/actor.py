@@ -364,7 +364,8 @@ def members_for(
     robots: Sequence[Robot], task: Task, ids: Sequence[str], offset: float = 0.0
 ) -> tuple[lc.Member, ...]:
     """The chosen robots with the capabilities each brings, its t_i and c_i."""
-    by_id = {robot.id: robot for robot in robots}
+    wanted = set(ids)  # a few among perhaps 50,000
+    by_id = {robot.id: robot for robot in robots if robot.id in wanted}
     chosen = [by_id[i] for i in ids]
     terms = robot_terms(chosen, task)
     return tuple(

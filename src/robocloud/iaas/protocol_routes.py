@@ -7,6 +7,7 @@
     GET /protocol/command.schema.json    generated from robocloud.fleet.messages when the
     GET /protocol/ack.schema.json        IaaS starts, so they are those of the code it runs
     GET /protocol/error.schema.json
+    GET /protocol/states.schema.json     (a fleet gateway's batch of states)
 
 No API key: a robot team reads them before it has one, as it reads docs/protocol.md.
 ``create_app`` calls ``install_protocol(app)``.
@@ -37,6 +38,10 @@ class ProtocolKeys(BaseModel):
     state: str = Field(description="where each robot publishes its state")
     cmd: str = Field(description="where each robot answers commands (a Zenoh queryable)")
     error: str = Field(description="where the IaaS answers a state it refused")
+    states: str = Field(
+        description="where a fleet gateway publishes its robots' states in batches "
+        "(a JSON array of states); <gateway> is the gateway's name"
+    )
 
 
 class ProtocolTiming(BaseModel):
@@ -60,7 +65,10 @@ def protocol_info(settings: Settings) -> ProtocolInfo:
         version=PROTOCOL_VERSION,
         cloud=settings.cloud,
         keys=ProtocolKeys(
-            state=f"{prefix}/<id>/state", cmd=f"{prefix}/<id>/cmd", error=f"{prefix}/<id>/error"
+            state=f"{prefix}/<id>/state",
+            cmd=f"{prefix}/<id>/cmd",
+            error=f"{prefix}/<id>/error",
+            states=f"{keys.fleets_prefix(settings.cloud)}/<gateway>/states",
         ),
         timing=ProtocolTiming(
             state_every=STATE_EVERY,

@@ -37,6 +37,8 @@ log = logging.getLogger(__name__)
 
 Wire = tuple[Any, ...]  # a robot as plain values, see ``to_wire``
 READY = "ready"
+_MAX_WIRES = 200_000  # robots remembered in their wire form (in the IaaS)
+_MAX_ROBOTS = 50_000  # robots remembered as Robots in a worker (about 2 KB each)
 
 
 def to_wire(robot: Robot) -> Wire:
@@ -70,6 +72,21 @@ def from_wire(wire: Wire) -> Robot:
     )
 
 
+# In a worker: the Robot of each wire form seen lately. Robots that did not
+# change come again as equal tuples, and making 8,000 Robots took longer than
+# selecting among them.
+_ROBOTS: dict[Wire, Robot] = {}
+
+
+def _robot_of(wire: Wire) -> Robot:
+    robot = _ROBOTS.get(wire)
+    if robot is None:
+        if len(_ROBOTS) >= _MAX_ROBOTS:
+            _ROBOTS.clear()
+        robot = _ROBOTS[wire] = from_wire(wire)
+    return robot
+
+
 def serve(conn: Connection, memory_mb: int) -> None:
     """A worker process: answer selections until the IaaS closes the pipe.
 
@@ -96,7 +113,7 @@ def _answer_until_closed(conn: Connection, memory_mb: int, select: Any) -> None:
         message = conn.recv()
         wires, task_json, optimizer, seed, budget_s = message
         try:
-            robots = [from_wire(w) for w in wires]
+            robots = [_robot_of(w) for w in wires]
             task = Task.model_validate(task_json)
             answer: tuple[str, Any] = (
                 "ok",
@@ -240,8 +257,22 @@ class SelectionPool:
         self._workers.clear()
 
 
+# The wire form of each robot last sent, by id: the robot link keeps a Robot
+# while its states repeat it, so most candidates are the same objects from one
+# selection to the next and need not be made into tuples again.
+_WIRES: dict[str, tuple[Robot, Wire]] = {}
+
+
 def _candidates(robots: Sequence[Robot], task: Task) -> list[Wire]:
-    return [to_wire(r) for r in filter_robots(robots, task)]
+    wires = []
+    for robot in filter_robots(robots, task):
+        known = _WIRES.get(robot.id)
+        if known is None or known[0] is not robot:
+            if len(_WIRES) >= _MAX_WIRES:
+                _WIRES.clear()
+            known = _WIRES[robot.id] = (robot, to_wire(robot))
+        wires.append(known[1])
+    return wires
 
 
 def failed(

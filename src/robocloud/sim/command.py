@@ -19,6 +19,7 @@ from collections.abc import Sequence
 
 from robocloud.errors import RoboCloudError
 from robocloud.federation import security
+from robocloud.fleet import keys
 from robocloud.sim.fleet import run_simulator
 
 
@@ -55,6 +56,12 @@ def add_sim_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="SECONDS",
         help="how long to wait for the router (default 10)",
     )
+    parser.add_argument(
+        "--gateway",
+        metavar="NAME",
+        help="act as a fleet gateway named NAME: publish the robots' states in batches on "
+        "robocloud/<cloud>/fleets/NAME/states instead of a key per robot (for large fleets)",
+    )
     security.add_arguments(parser, router=False)
 
 
@@ -77,6 +84,8 @@ def sim_command(args: argparse.Namespace) -> int:
 
 def _run(args: argparse.Namespace, stop: threading.Event) -> int:
     overlay_security = security.from_arguments(args)  # bad flags: an error before anything runs
+    if args.gateway is not None:
+        keys.check_chunk(args.gateway, "gateway")
     print(
         f"simulating {args.robots} robots of {args.cloud} at speedup {args.speedup:g},"
         f" connecting to {', '.join(args.connect)}; Ctrl-C stops",
@@ -93,6 +102,7 @@ def _run(args: argparse.Namespace, stop: threading.Event) -> int:
         churn=args.churn,
         connect_timeout=args.connect_timeout,
         security=overlay_security,
+        gateway=args.gateway,
     )
     return 0
 

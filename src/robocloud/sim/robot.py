@@ -24,6 +24,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+import msgspec
+
 from robocloud.domain import Capability, Robot, RobotStatus
 from robocloud.fleet.behaviour import (
     DRAIN_PER_M,
@@ -32,6 +34,7 @@ from robocloud.fleet.behaviour import (
     refuse_assign,
     refuse_cancel,
 )
+from robocloud.fleet.ingest import WireState, WireTask, wire_task
 from robocloud.fleet.messages import Ack, Assign, Phase, State, TaskProgress
 
 # A finished task stays in the robot's state this long (wall seconds), so one
@@ -91,6 +94,7 @@ class SimRobot:
         self.seq = 0
         # Set when a command or a fault changed the robot between ticks.
         self.dirty = False
+        self._capabilities_json: msgspec.Raw | None = None  # made once, for wire_state
 
     @classmethod
     def from_json(cls, data: Mapping[str, Any] | Robot) -> SimRobot:
@@ -110,6 +114,35 @@ class SimRobot:
     def available(self) -> bool:
         """Idle with nothing going on: the churn may start an activity."""
         return self.status == "idle" and self.job is None and self.background is None
+
+    def wire_state(self, now: float) -> WireState:
+        """``state(now)`` as a gateway writes it (msgspec, no validation: the robot is valid)."""
+        self.seq += 1
+        task: WireTask | None = None
+        if self.job is not None:
+            job = self.job
+            task = WireTask(job.request_id, job.phase, job.progress, list(job.capabilities))
+        elif self.finished is not None and now < self.finished_until:
+            task = wire_task(self.finished)
+        if self._capabilities_json is None:
+            self._capabilities_json = msgspec.Raw(
+                msgspec.json.encode({n: c.model_dump() for n, c in self.capabilities.items()})
+            )
+        return WireState(
+            id=self.id,
+            cloud=self.cloud,
+            kind=self.kind,
+            position=[self.position[0], self.position[1]],
+            speed=self.speed,
+            battery=self.battery,
+            status=self.status,
+            travel_cost_per_m=self.travel_cost_per_m,
+            capabilities=self._capabilities_json,
+            task=task,
+            last_task=wire_task(self.finished),
+            seq=self.seq,
+            sent_at=now,
+        )
 
     def state(self, now: float) -> State:
         """The robot's state message, stamped ``now``; each call is a new message."""

@@ -16,11 +16,15 @@ import logging
 import signal
 import sys
 import threading
+from typing import TYPE_CHECKING
 
 from robocloud.errors import InvalidInput
 from robocloud.federation import security
 from robocloud.gateways.vda5050.capabilities import GatewayCapabilities, load_capabilities
 from robocloud.gateways.vda5050.messages import MAJOR
+
+if TYPE_CHECKING:
+    from robocloud.gateways.vda5050.zenoh_side import CommandHandler
 
 DEFAULT_MQTT = "127.0.0.1:1883"
 
@@ -65,6 +69,13 @@ def add_vda5050_arguments(parser: argparse.ArgumentParser) -> None:
         choices=("debug", "info", "warning", "error"),
         help="default info; debug also shows the traceback of an error",
     )
+    parser.add_argument(
+        "--gateway-name",
+        metavar="NAME",
+        help="speak for the AGVs as a fleet gateway named NAME: one command queryable for "
+        "all and their states on robocloud/<cloud>/fleets/NAME/states (default: the keys "
+        "of a robot for each AGV)",
+    )
     security.add_arguments(parser, router=False)
 
 
@@ -91,6 +102,8 @@ def check_arguments(args: argparse.Namespace) -> tuple[tuple[str, int], GatewayC
     from robocloud.fleet.keys import check_chunk
 
     check_chunk(args.cloud, "--cloud")
+    if args.gateway_name is not None:
+        check_chunk(args.gateway_name, "--gateway-name")
     check_endpoints(args.connect, "--connect")
     address = mqtt_address(args.mqtt)
     topic_level(args.interface, "--interface")
@@ -136,7 +149,7 @@ def run_gateway(
 ) -> None:
     from robocloud.fleet.zenoh_session import open_client
     from robocloud.gateways.vda5050.gateway import Vda5050Gateway
-    from robocloud.gateways.vda5050.zenoh_side import ZenohRobots
+    from robocloud.gateways.vda5050.zenoh_side import RobotSide, ZenohFleet, ZenohRobots
 
     if not capabilities.capabilities:
         logging.getLogger(__name__).warning(
@@ -147,8 +160,15 @@ def run_gateway(
         args.connect, timeout=args.connect_timeout, security=security.from_arguments(args)
     )
     try:
+        name = args.gateway_name
+
+        def robot_side(on_command: CommandHandler) -> RobotSide:
+            if name is None:
+                return ZenohRobots(session, args.cloud, on_command)
+            return ZenohFleet(session, args.cloud, name, on_command)
+
         gateway = Vda5050Gateway(
-            lambda on_command: ZenohRobots(session, args.cloud, on_command),
+            robot_side,
             address[0],
             address[1],
             capabilities,

@@ -1,8 +1,12 @@
-"""The gateway's robots on Zenoh: for each AGV, a command queryable and a state publisher.
+"""The gateway's robots on Zenoh, either way docs/protocol.md allows.
 
-The same keys as any robot (docs/protocol.md), on one Zenoh client session. It
-is all the gateway knows of Zenoh, so a later fleet-gateway design (one
-wildcard queryable, states in batches) replaces this class alone.
+- ``ZenohRobots``: for each AGV a command queryable and a state publisher, the
+  keys of any robot.
+- ``ZenohFleet``: as a fleet gateway ("Fleet gateways"): one wildcard command
+  queryable answering for the AGVs it fronts, and their states on the
+  gateway's batch key (``robocloud vda5050 --gateway-name NAME``).
+
+Either is all the gateway knows of Zenoh, on one Zenoh client session.
 """
 
 from __future__ import annotations
@@ -18,6 +22,7 @@ import zenoh
 
 from robocloud.errors import describe_validation_errors
 from robocloud.fleet import keys
+from robocloud.fleet.ingest import encode_batch
 from robocloud.fleet.messages import COMMAND, Ack, Assign, Cancel, State
 
 log = logging.getLogger(__name__)
@@ -96,16 +101,75 @@ class ZenohRobots:
 
     def _answer(self, robot: str, query: zenoh.Query) -> None:
         with query:
-            payload = query.payload.to_bytes() if query.payload is not None else b""
-            try:
-                command = COMMAND.validate_json(payload)
-            except pydantic.ValidationError as error:
-                sentence = describe_validation_errors(error.errors(), prefix="command").message
-                ack = Ack.refuse(robot, None, sentence)
-            else:
-                try:
-                    ack = self._on_command(robot, command)
-                except Exception as error:  # the gateway must answer, whatever happened
-                    log.exception("the command %s for %s failed", command.type, robot)
-                    ack = Ack.refuse(robot, command.request_id, f"the gateway failed: {error}")
-            query.reply(keys.cmd_key(self._cloud, robot), ack.model_dump_json(), encoding=_JSON)
+            _reply(self._cloud, robot, query, self._on_command)
+
+
+class ZenohFleet:
+    """The AGVs of ``cloud`` behind one gateway named ``name``: two declarations in all.
+
+    Each state is published as it comes, as a batch of one on the gateway's
+    batch key (a VDA 5050 fleet is small; what the gateway saves is the two
+    declarations per AGV).
+    """
+
+    def __init__(
+        self, session: zenoh.Session, cloud: str, name: str, on_command: CommandHandler
+    ) -> None:
+        self._session = session
+        self._cloud = keys.check_chunk(cloud, "cloud")
+        self._on_command = on_command
+        self._lock = threading.Lock()
+        self._robots: set[str] = set()
+        self._publisher = session.declare_publisher(keys.batch_key(cloud, name), encoding=_JSON)
+        self._queryable = session.declare_queryable(keys.all_cmds(cloud), self._answer)
+
+    @property
+    def cloud(self) -> str:
+        return self._cloud
+
+    def has(self, robot: str) -> bool:
+        with self._lock:
+            return robot in self._robots
+
+    def add(self, robot: str) -> None:
+        with self._lock:
+            self._robots.add(robot)
+
+    def remove(self, robot: str) -> None:
+        with self._lock:
+            self._robots.discard(robot)
+
+    def publish(self, state: State) -> None:
+        if self.has(state.id):
+            self._publisher.put(encode_batch([state.model_dump(mode="json")]))
+
+    def close(self) -> None:
+        with self._lock:
+            self._robots.clear()
+        for entity in (self._queryable, self._publisher):
+            with contextlib.suppress(zenoh.ZError):
+                entity.undeclare()  # type: ignore[no-untyped-call]
+
+    def _answer(self, query: zenoh.Query) -> None:
+        with query:
+            robot = keys.robot_of(str(query.key_expr))
+            if robot is None or not self.has(robot):
+                return  # not an AGV of this gateway: another answers, or nobody
+            _reply(self._cloud, robot, query, self._on_command)
+
+
+def _reply(cloud: str, robot: str, query: zenoh.Query, on_command: CommandHandler) -> None:
+    """Answer a command query for ``robot`` with its Ack (the caller finalizes the query)."""
+    payload = query.payload.to_bytes() if query.payload is not None else b""
+    try:
+        command = COMMAND.validate_json(payload)
+    except pydantic.ValidationError as error:
+        sentence = describe_validation_errors(error.errors(), prefix="command").message
+        ack = Ack.refuse(robot, None, sentence)
+    else:
+        try:
+            ack = on_command(robot, command)
+        except Exception as error:  # the gateway must answer, whatever happened
+            log.exception("the command %s for %s failed", command.type, robot)
+            ack = Ack.refuse(robot, command.request_id, f"the gateway failed: {error}")
+    query.reply(keys.cmd_key(cloud, robot), ack.model_dump_json(), encoding=_JSON)

@@ -366,12 +366,21 @@ def scenario_command(args: argparse.Namespace) -> int:
             f"--clouds must be between 1 and {MAX_CLOUDS}, not {args.clouds}.", field="--clouds"
         )
     _check_at_least("--seed", args.seed, 0)
-    text = json.dumps(wildfire_scenario(args.robots, args.clouds, args.seed)) + "\n"
+    import msgspec
+
+    # msgspec writes a million robots in about a second, json.dumps in ten.
+    data = msgspec.json.encode(wildfire_scenario(args.robots, args.clouds, args.seed)) + b"\n"
     if args.output is None:
-        sys.stdout.write(text)
+        buffer = getattr(sys.stdout, "buffer", None)  # none on a StringIO
+        if buffer is None:
+            sys.stdout.write(data.decode())
+        else:
+            sys.stdout.flush()
+            buffer.write(data)
+            buffer.flush()
         return EXIT_OK
     try:
-        Path(args.output).write_text(text, encoding="utf-8")
+        Path(args.output).write_bytes(data)
     except OSError as error:
         raise InvalidInput(
             f"cannot write {args.output}: {error.strerror or error}.", field="--output"

@@ -415,3 +415,26 @@ def test_command_stdin_not_utf8(
     assert (code, out) == (2, "")
     assert err == "robocloud: stdin is not UTF-8 text (invalid start byte).\n"
 
+
+
+@pytest.mark.parametrize("value", ["-1", "nan", "inf"])
+def test_command_bad_budget(capsys: pytest.CaptureFixture[str], tmp_path: Path, value: str) -> None:
+    path = tmp_path / "fire.json"
+    path.write_text(json.dumps(wildfire_scenario(50, 3, 1)))
+    code, out, err = run(capsys, "select", str(path), "--budget", value)
+    assert (code, out) == (2, "")
+    assert err == f"robocloud: --budget must be 0 (no limit) or more seconds, not {float(value)}.\n"
+
+
+def test_command_budget(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    path = tmp_path / "fire.json"
+    path.write_text(json.dumps(wildfire_scenario(1000, 3, 1)))
+    answers = []
+    for budget in ("0", "0.000001", "30"):
+        code, out, err = run(capsys, "select", str(path), "--budget", budget)
+        assert (code, err) == (0, "")
+        answers.append(json.loads(out))
+    unlimited, tiny, generous = answers
+    assert unlimited["complete"] and generous["complete"]
+    assert without_elapsed(json.dumps(unlimited)) == without_elapsed(json.dumps(generous))
+    assert not tiny["complete"] and "time budget of 1e-06 s" in tiny["note"]

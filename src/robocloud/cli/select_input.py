@@ -239,8 +239,8 @@ def _read_columns(data: bytes | str, started: float) -> Candidates:
     try:
         document = msgspec.json.decode(data, type=_Document)
     except (msgspec.DecodeError, msgspec.ValidationError):
-        # Not JSON, not an object, a field missing or unknown: cheap to find
-        # whole, and the objects reader says it in its own words.
+        # Not JSON, not an object, a field missing or unknown: the objects
+        # reader finds it (in its own words) before it builds any robot.
         raise _UseObjects from None
     task_error: InvalidInput | None = None
     task: Task | None = None

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks import federation, fleet, selection, service, soak, throughput
+from benchmarks import federation, fleet, select_command, selection, service, soak, throughput
 from benchmarks.report import SectionReport, render_markdown, render_text, write_csv
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -33,6 +33,7 @@ class Section:
 
 SECTIONS: list[Section] = [
     Section("selection", selection.run),
+    Section("select-command", select_command.run),
     Section("service", service.run),
     Section("soak", soak.run),
     Section("federation", federation.run),

@@ -9,7 +9,14 @@ from robocloud.domain.request import (
     can_move,
     is_final,
 )
-from robocloud.domain.robot import ROBOT_STATUSES, Capability, Robot, RobotStatus
+from robocloud.domain.robot import (
+    ROBOT_STATUSES,
+    Capability,
+    CapabilityLike,
+    Robot,
+    RobotLike,
+    RobotStatus,
+)
 from robocloud.domain.task import CRITERIA_IMPORTANCE, Task
 
 __all__ = [
@@ -19,9 +26,11 @@ __all__ = [
     "REQUEST_STATES",
     "ROBOT_STATUSES",
     "Capability",
+    "CapabilityLike",
     "Coalition",
     "RequestState",
     "Robot",
+    "RobotLike",
     "RobotStatus",
     "Task",
     "can_move",

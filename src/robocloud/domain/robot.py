@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from collections.abc import Mapping, Sequence
+from typing import Annotated, Literal, Protocol
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -15,13 +16,15 @@ MAX_AMOUNT = 1e9  # a capability's time (s) or cost, a travel cost per metre
 # A name or id: printable, one line. PostgreSQL refuses NUL in text, and a
 # control character in an id would corrupt logs and keys.
 NAME_PATTERN = r"^[^\x00-\x1f\x7f]+$"
+MAX_NAME_LENGTH = 128
+MAX_BATTERY = 100.0
 
 Finite = Annotated[float, Field(allow_inf_nan=False)]
 NonNegative = Annotated[float, Field(ge=0.0, le=MAX_AMOUNT, allow_inf_nan=False)]
 Coordinate = Annotated[float, Field(ge=-MAX_COORDINATE, le=MAX_COORDINATE, allow_inf_nan=False)]
 Position = Annotated[list[Coordinate], Field(min_length=2, max_length=2)]
 Speed = Annotated[float, Field(ge=MIN_SPEED, le=MAX_SPEED, allow_inf_nan=False)]
-Name = Annotated[str, Field(min_length=1, max_length=128, pattern=NAME_PATTERN)]
+Name = Annotated[str, Field(min_length=1, max_length=MAX_NAME_LENGTH, pattern=NAME_PATTERN)]
 
 RobotStatus = Literal["idle", "reserved", "busy", "charging", "offline"]
 ROBOT_STATUSES: tuple[str, ...] = ("idle", "reserved", "busy", "charging", "offline")
@@ -44,7 +47,41 @@ class Robot(BaseModel):
     cloud: Name
     position: Position = Field(description="[x, y] in metres")
     speed: Speed = Field(description="m/s")
-    battery: Annotated[float, Field(ge=0.0, le=100.0, allow_inf_nan=False)]
+    battery: Annotated[float, Field(ge=0.0, le=MAX_BATTERY, allow_inf_nan=False)]
     status: RobotStatus
     travel_cost_per_m: NonNegative
     capabilities: dict[Name, Capability]
+
+
+# What the selection reads of a robot. ``Robot`` has it, and so has the light
+# record ``robocloud select`` decodes a large scenario into (robocloud.cli.
+# select_input), validated by the same rules without one pydantic object per robot.
+class CapabilityLike(Protocol):
+    @property
+    def time(self) -> float: ...
+
+    @property
+    def cost(self) -> float: ...
+
+
+class RobotLike(Protocol):
+    @property
+    def id(self) -> str: ...
+
+    @property
+    def position(self) -> Sequence[float]: ...
+
+    @property
+    def speed(self) -> float: ...
+
+    @property
+    def battery(self) -> float: ...
+
+    @property
+    def status(self) -> str: ...
+
+    @property
+    def travel_cost_per_m(self) -> float: ...
+
+    @property
+    def capabilities(self) -> Mapping[str, CapabilityLike]: ...

@@ -16,7 +16,7 @@ import time
 from collections.abc import Sequence
 from typing import Literal
 
-from robocloud.domain import Robot, Task
+from robocloud.domain import RobotLike, Task
 from robocloud.errors import InvalidInput
 from robocloud.selection.budget import Deadline
 from robocloud.selection.choice import choose, within_thresholds
@@ -77,7 +77,7 @@ def _bound_note(bound: Bound | None, deadline: Deadline, steps: int) -> str:
 
 
 def select(
-    robots: Sequence[Robot],
+    robots: Sequence[RobotLike],
     task: Task,
     optimizer: OptimizerChoice = "auto",
     *,
@@ -91,21 +91,33 @@ def select(
     The budget is checked between steps of the search: a cut search returns
     the feasible coalitions found so far, ``complete=False``, and for the
     exact optimizer a certified bound on how far they are from the true front.
+
+    ``robots`` may be ``Robot`` objects or any records with the same fields
+    (``RobotLike``); the result's ``stages`` says how long filtering (with
+    each candidate's t_i and c_i), ranking and optimisation took.
     """
     _check(optimizer, pool_size, budget_s)
     started = time.perf_counter()
     deadline = Deadline.after(budget_s)
     candidates = filter_robots(robots, task)
     problem = CoalitionProblem.build(candidates, task)
+    filtered = time.perf_counter()
     order, _ = rank_candidates(problem, task.priority)
+    ranked = time.perf_counter()
     used = resolve(optimizer)
 
     def result(**fields: object) -> SelectionResult:
+        ended = time.perf_counter()
         return SelectionResult(
             candidates=problem.size,
             ranking=tuple(problem.ids[i] for i in order),
             optimizer=used,
-            elapsed_ms=(time.perf_counter() - started) * 1000.0,
+            elapsed_ms=(ended - started) * 1000.0,
+            stages=(
+                ("filtering", (filtered - started) * 1000.0),
+                ("ranking", (ranked - filtered) * 1000.0),
+                ("optimisation", (ended - ranked) * 1000.0),
+            ),
             **fields,  # type: ignore[arg-type]
         )
 

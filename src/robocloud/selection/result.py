@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Literal
 
 from robocloud.domain import Coalition
@@ -22,6 +22,9 @@ class SelectionResult:
       certificate) and when nothing was found.
     - ``note``: a sentence saying what the budget cut and what the bound means.
     - ``searched``: False when a cheap test answered before any optimizer ran.
+    - ``stages``: (stage, ms) for filtering (with the candidates' t_i and
+      c_i), ranking and optimisation (everything after the ranking); not in
+      the JSON output (``robocloud select --timings`` prints them).
     """
 
     candidates: int
@@ -36,6 +39,7 @@ class SelectionResult:
     bound: Bound | None = None
     note: str | None = None
     searched: bool = True
+    stages: tuple[tuple[str, float], ...] = field(default=(), compare=False)
 
     def to_json(self) -> dict[str, Any]:
         """MODEL.md's ``select`` output, and ``complete``, ``bound`` and ``note``."""

@@ -39,7 +39,10 @@ against cost; for seeds 0, 1 and 3 it also trades size (3 or 4 robots).
 
 from __future__ import annotations
 
+import gc
 import string
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Any
 
 import numpy as np
@@ -119,6 +122,23 @@ def wildfire_task(seed: int = 0) -> dict[str, Any]:
     }
 
 
+@contextmanager
+def _collector_paused() -> Iterator[None]:
+    """No cyclic garbage collection while millions of lists and dicts are made.
+
+    They hold no cycles, and each collection would walk all those made so
+    far: paused, a million robots take half the time.
+    """
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if enabled:
+            gc.enable()
+
+
+@_collector_paused()
 def wildfire_robots(robots: int = 1000, clouds: int = 3, seed: int = 0) -> list[dict[str, Any]]:
     """``robots`` robots as JSON dicts valid for ``robocloud.domain.Robot``.
 

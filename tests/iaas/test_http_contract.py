@@ -132,6 +132,20 @@ def test_405_names_every_allowed_method(client: TestClient) -> None:
     assert answer.status_code == 405 and answer.headers["allow"] == "GET"
 
 
+def test_a_single_valued_query_parameter_given_twice_is_422_naming_it(
+    client: TestClient,
+) -> None:
+    """FastAPI would keep the last value in silence (found by schemathesis, ST201)."""
+    answer = client.get("/v1/robots?cloud=cloud-a&cloud=cloud-b", headers=A)
+    assert answer.status_code == 422
+    assert "'cloud' is given more than once" in answer.json()["detail"]
+    answer = client.get("/v1/requests?limit=5&state=received&limit=7", headers=A)
+    assert answer.status_code == 422 and "'limit'" in answer.json()["detail"]
+    # A list parameter may repeat; the key is still checked first.
+    assert client.get("/v1/robots?capability=grabber&capability=x", headers=A).status_code == 200
+    assert client.get("/v1/robots?cloud=a&cloud=b").status_code == 401
+
+
 def test_the_key_is_checked_before_the_body_is_read(client: TestClient) -> None:
     for headers in ({}, {"Authorization": "Bearer wrong"}):
         answer = client.post(

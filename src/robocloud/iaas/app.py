@@ -13,6 +13,7 @@ import json
 import logging
 from collections.abc import AsyncIterator, Mapping
 from typing import Annotated, Any, Literal
+from urllib.parse import parse_qsl
 
 from fastapi import Depends, FastAPI, Header, Path, Query, Request, Response, Security
 from fastapi.exceptions import RequestValidationError
@@ -655,6 +656,10 @@ class Gate:
                 await _error(error)(scope, receive, send)
                 return
             scope.setdefault("state", {})["application"] = application
+            repeated = repeated_query_parameter(scope.get("query_string", b""))
+            if repeated is not None:
+                await _error(repeated)(scope, receive, send)
+                return
         length = headers.get("content-length")
         if length is not None and length.isdigit() and int(length) > self.limit:
             refusal = PayloadTooLarge(
@@ -679,6 +684,26 @@ class Gate:
                     return
             receive = _replay(body, receive)
         await self.app(scope, receive, send)
+
+
+# Query parameters of the API that take several values (GET /v1/robots?capability=a&capability=b).
+REPEATABLE_QUERY = frozenset({"capability"})
+
+
+def repeated_query_parameter(query: bytes) -> InvalidInput | None:
+    """A 422 for a single-valued query parameter given more than once, else None.
+
+    FastAPI would silently keep the last value; the API says which one it saw twice.
+    """
+    seen: set[str] = set()
+    for name, _ in parse_qsl(query.decode("latin-1"), keep_blank_values=True):
+        if name in seen and name not in REPEATABLE_QUERY:
+            return InvalidInput(
+                f"the query parameter {name!r} is given more than once; give it once.",
+                field=name,
+            )
+        seen.add(name)
+    return None
 
 
 def _replay(body: bytes, receive: Receive) -> Receive:

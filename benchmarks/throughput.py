@@ -54,7 +54,7 @@ async def offer(url: str, key: str, rate: float, seconds: float, seed: int) -> d
                           keepalive_expiry=2.0)
     sent: dict[str, float] = {}
     post_ms: list[float] = []
-    refused: dict[int, int] = {}
+    refused: dict[int | str, int] = {}
     async with httpx.AsyncClient(base_url=url, headers=headers, timeout=60,
                                  limits=limits) as client:
 
@@ -62,7 +62,12 @@ async def offer(url: str, key: str, rate: float, seconds: float, seed: int) -> d
             body = task(rng)
             at = time.time()
             t0 = time.perf_counter()
-            answer = await client.post("/v1/requests", json=body)
+            try:
+                answer = await client.post("/v1/requests", json=body)
+            except httpx.HTTPError as error:  # the server dropped the connection
+                name = type(error).__name__
+                refused[name] = refused.get(name, 0) + 1
+                return
             post_ms.append((time.perf_counter() - t0) * 1000)
             if answer.status_code == 202:
                 sent[answer.json()["id"]] = at
@@ -138,7 +143,7 @@ def run(quick: bool, out: Path) -> SectionReport:
                 "p50": _pct(got["latencies"], 50),
                 "p99": _pct(got["latencies"], 99),
                 "post_p99": _pct(got["post_ms"], 99),
-                "refused": ", ".join(f"{c}: {n}" for c, n in sorted(got["refused"].items()))
+                "refused": ", ".join(f"{c}: {n}" for c, n in sorted(got["refused"].items(), key=str))
                 or "none",
             })
             time.sleep(2.0)  # robots back, queues empty

@@ -201,16 +201,25 @@ def test_a_refused_state_is_answered_on_the_robots_error_key_and_logged(
         del missing["kind"]
         client.put(key, json.dumps(missing))
         assert wait_until(lambda: len(answers) == 1)
+        answered = time.monotonic()
         # Repeated within the second: logged once, answered once.
         for battery in (150.0, 0.5):
             client.put(key, state("a-0100", seq=2, battery=battery))
+        repeated = time.monotonic() - answered
         client.put(keys.state_key("cloud-a", "a-0101"), state("a-0102"))
-        client.put(keys.state_key("cloud-a", "a-0103"), b"x" * 70_000)
-        assert wait_until(lambda: len(answers) == 3)
+        # Fragmented on the wire: BLOCK, as Zenoh's default (DROP) may drop it when the
+        # puts just before fill the queue.
+        client.put(keys.state_key("cloud-a", "a-0103"), b"x" * 70_000,
+                   congestion_control=zenoh.CongestionControl.BLOCK)
+        assert wait_until(lambda: len(answers) >= 3), [a["key"] for a in answers]
         time.sleep(0.2)
         assert "a-0100" in link.states()  # the valid one (battery 0.5 %) was taken
     listening.undeclare()  # type: ignore[no-untyped-call]
-    by_key = {a["key"]: a for a in answers}
+    if repeated < 0.5:  # a loaded machine may take longer than the second between them
+        assert len(answers) == 3, answers
+    by_key: dict[object, dict[str, object]] = {}
+    for answer in answers:
+        by_key.setdefault(answer["key"], answer)
     first = by_key["robocloud/cloud-a/robots/a-0100/error"]
     assert first["field"] == "kind"
     assert first["error"] == "kind is missing."

@@ -188,7 +188,11 @@ def test_cancel_stops_the_robots_and_is_idempotent(
     first = client.post(f"/v1/requests/{rid}/cancel", headers=A)
     assert first.status_code == 200 and first.json()["state"] == "canceled"
     assert client.post(f"/v1/requests/{rid}/cancel", headers=A).json()["state"] == "canceled"
-    assert fleet.commands[-1][1].type == "cancel"
+    # The answer comes once "canceled" is stored; the robots are told right after.
+    deadline = time.monotonic() + 5.0
+    while fleet.commands[-1][1].type != "cancel":
+        assert time.monotonic() < deadline, f"no cancel sent: {fleet.commands}"
+        time.sleep(0.01)
     robots = {r["id"]: r for r in client.get("/v1/robots", headers=A).json()}
     assert robots["a-0000"]["request"] is None
 

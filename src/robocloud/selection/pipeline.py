@@ -16,6 +16,8 @@ import time
 from collections.abc import Sequence
 from typing import Literal
 
+import numpy as np
+
 from robocloud.domain import Robot, Task
 from robocloud.errors import InvalidInput
 from robocloud.selection.budget import Deadline
@@ -97,13 +99,48 @@ def select(
     deadline = Deadline.after(budget_s)
     candidates = filter_robots(robots, task)
     problem = CoalitionProblem.build(candidates, task)
+    return _select(problem, task, optimizer, seed, pool_size, settings, started, deadline)
+
+
+def select_problem(
+    problem: CoalitionProblem,
+    task: Task,
+    optimizer: OptimizerChoice = "auto",
+    *,
+    seed: int = 0,
+    pool_size: int | None = None,
+    settings: MopsoSettings | None = None,
+    budget_s: float | None = DEFAULT_BUDGET_S,
+) -> SelectionResult:
+    """``select`` after its filtering: Algorithm 1 over candidates already filtered.
+
+    The IaaS filters its fleet's columns itself (``robocloud.selection.columns``)
+    and hands the worker process only the candidates' terms; this is the same
+    pipeline from the ranking on, so the answer is ``select``'s.
+    """
+    _check(optimizer, pool_size, budget_s)
+    started = time.perf_counter()
+    deadline = Deadline.after(budget_s)
+    return _select(problem, task, optimizer, seed, pool_size, settings, started, deadline)
+
+
+def _select(
+    problem: CoalitionProblem,
+    task: Task,
+    optimizer: OptimizerChoice,
+    seed: int,
+    pool_size: int | None,
+    settings: MopsoSettings | None,
+    started: float,
+    deadline: Deadline,
+) -> SelectionResult:
     order, _ = rank_candidates(problem, task.priority)
     used = resolve(optimizer)
 
     def result(**fields: object) -> SelectionResult:
         return SelectionResult(
             candidates=problem.size,
-            ranking=tuple(problem.ids[i] for i in order),
+            ranking=tuple(np.array(problem.ids, dtype=object)[order].tolist()),
             optimizer=used,
             elapsed_ms=(time.perf_counter() - started) * 1000.0,
             **fields,  # type: ignore[arg-type]

@@ -68,7 +68,8 @@ def _answer_until_closed(conn: Connection, memory_mb: int, select: Any) -> None:
             task = Task.model_validate(task_json)
             answer: tuple[str, Any] = (
                 "ok",
-                select(problem, task, optimizer, seed=seed, budget_s=budget_s),
+                # The IaaS keeps no ranking (``failed`` has none either).
+                select(problem, task, optimizer, seed=seed, budget_s=budget_s, ranking=False),
             )
         except MemoryError:
             answer = ("error", f"the selection needed more than its {memory_mb} MB of memory")

@@ -208,6 +208,7 @@ class RequestService:
             self.settings.optimizer,  # type: ignore[arg-type]
             seed=self.settings.seed,
             budget_s=self.settings.selection_budget,
+            ranking=False,  # the IaaS keeps none
         )
         return result
 

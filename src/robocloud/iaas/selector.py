@@ -30,6 +30,8 @@ from dataclasses import dataclass
 from multiprocessing.connection import Connection
 from typing import Any
 
+import numpy as np
+
 from robocloud.domain import Task
 from robocloud.selection.problem import CoalitionProblem
 from robocloud.selection.result import SelectionResult
@@ -53,11 +55,34 @@ def serve(conn: Connection, memory_mb: int) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     limit = memory_mb * 1024 * 1024
     resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+    _warm_up(select_problem)
     try:
         conn.send(READY)
         _answer_until_closed(conn, memory_mb, select_problem)
     except (EOFError, OSError):
         return  # the IaaS went away
+
+
+def _warm_up(select: Any) -> None:
+    """One small selection before the first real one: it pays the first calls' costs
+    (lazy imports, the solver's set-up), which made a worker's first selection
+    several times slower than the next ones."""
+    from robocloud.selection.problem import RobotTerms
+
+    task = Task.model_validate(
+        {"location": [0.0, 0.0], "sensing": {"s": 1}, "actuating": {"a": 1},
+         "max_robots": 2, "max_cost": 100.0, "max_time": 100.0}
+    )  # fmt: skip
+    uses = np.array([[True, False], [False, True], [True, True], [False, True]])
+    terms = RobotTerms(
+        time=np.array([3.0, 2.0, 5.0, 1.0]),
+        cost=np.array([1.0, 2.0, 2.5, 4.0]),
+        uses=uses,
+        capabilities=tuple(task.required),
+    )
+    problem = CoalitionProblem.of_terms(("w-0", "w-1", "w-2", "w-3"), terms, task)
+    for optimizer in ("exact", "mopso"):
+        select(problem, task, optimizer, budget_s=1.0, ranking=False)
 
 
 def _answer_until_closed(conn: Connection, memory_mb: int, select: Any) -> None:

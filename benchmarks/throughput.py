@@ -143,8 +143,9 @@ def run(quick: bool, out: Path) -> SectionReport:
                 "p50": _pct(got["latencies"], 50),
                 "p99": _pct(got["latencies"], 99),
                 "post_p99": _pct(got["post_ms"], 99),
-                "refused": ", ".join(f"{c}: {n}" for c, n in sorted(got["refused"].items(), key=str))
-                or "none",
+                "refused": ", ".join(
+                    f"{c}: {n}" for c, n in sorted(got["refused"].items(), key=str)
+                ) or "none",
             })
             time.sleep(2.0)  # robots back, queues empty
     table = Table(

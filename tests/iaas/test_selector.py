@@ -12,14 +12,17 @@ from typing import Any
 import pytest
 
 from robocloud.domain import Robot, Task
-from robocloud.iaas.selector import SelectionPool, SelectorSettings, from_wire, to_wire
+from robocloud.iaas.selector import SelectionPool, SelectorSettings
+from robocloud.selection.filtering import filter_robots
 from robocloud.selection.pipeline import select
+from robocloud.selection.problem import CoalitionProblem
 from robocloud.sim.scenario import wildfire_robots, wildfire_task
 
 pytestmark = pytest.mark.slow  # each pool spawns Python processes
 
 ROBOTS = [Robot.model_validate(r) for r in wildfire_robots(1000, 3, 1)]
 TASK = Task.model_validate(wildfire_task(1))
+PROBLEM = CoalitionProblem.build(filter_robots(ROBOTS, TASK), TASK)
 
 
 def run(settings: SelectorSettings, work: Callable[[SelectionPool], Awaitable[Any]]) -> Any:
@@ -44,13 +47,9 @@ def run(settings: SelectorSettings, work: Callable[[SelectionPool], Awaitable[An
         threads.shutdown()
 
 
-def test_robots_cross_to_the_worker_unchanged() -> None:
-    assert [from_wire(to_wire(r)) for r in ROBOTS] == ROBOTS
-
-
 def test_a_worker_answers_what_the_pipeline_answers_in_process() -> None:
     async def work(pool: SelectionPool) -> Any:
-        return [await pool(ROBOTS, TASK) for _ in range(2)]
+        return [await pool(PROBLEM, TASK) for _ in range(2)]
 
     answers = run(SelectorSettings(workers=1), work)
     here = select(ROBOTS, TASK, "auto", seed=0, budget_s=2.0)
@@ -62,10 +61,10 @@ def test_a_worker_answers_what_the_pipeline_answers_in_process() -> None:
 
 def test_a_worker_past_its_limit_is_stopped_and_replaced() -> None:
     async def work(pool: SelectionPool) -> Any:
-        late = await pool(ROBOTS, TASK)
+        late = await pool(PROBLEM, TASK)
         # The pool goes on with a new worker (given a limit it can meet).
         pool.settings.budget_s, pool.settings.grace = 2.0, 1.0
-        again = await pool(ROBOTS, TASK)
+        again = await pool(PROBLEM, TASK)
         return late, again, pool.killed
 
     # No selection of 1,000 robots answers within a millisecond.
@@ -78,12 +77,12 @@ def test_a_worker_past_its_limit_is_stopped_and_replaced() -> None:
 
 def test_a_worker_that_dies_is_replaced() -> None:
     async def work(pool: SelectionPool) -> Any:
-        first = await pool(ROBOTS, TASK)
+        first = await pool(PROBLEM, TASK)
         [worker] = list(pool._workers)
         os.kill(worker.process.pid, signal.SIGKILL)
         worker.process.join(5)
-        lost = await pool(ROBOTS, TASK)
-        after = await pool(ROBOTS, TASK)
+        lost = await pool(PROBLEM, TASK)
+        after = await pool(PROBLEM, TASK)
         return first, lost, after
 
     first, lost, after = run(SelectorSettings(workers=1), work)
@@ -95,7 +94,7 @@ def test_a_worker_that_dies_is_replaced() -> None:
 
 def test_selections_run_side_by_side() -> None:
     async def work(pool: SelectionPool) -> Any:
-        return await asyncio.gather(*(pool(ROBOTS, TASK) for _ in range(4)))
+        return await asyncio.gather(*(pool(PROBLEM, TASK) for _ in range(4)))
 
     answers = run(SelectorSettings(workers=2, max_workers=4), work)
     assert all(a.chosen == answers[0].chosen for a in answers)

@@ -11,7 +11,7 @@ from robocloud.domain import Robot, Task
 from robocloud.selection.exact import exact_front
 from robocloud.selection.filtering import filter_robots
 from robocloud.selection.pareto import dominates
-from robocloud.selection.pipeline import select
+from robocloud.selection.pipeline import select, select_problem
 from robocloud.selection.pool import build_pool
 from robocloud.selection.problem import CoalitionProblem
 from robocloud.selection.ranking import rank_candidates
@@ -174,3 +174,28 @@ def test_the_thesis_example_follows_the_priority(priority: str, chosen: tuple[st
     # Two members: balanced weights tie (broken by cost); "time" weighs T 0.6.
     assert result.chosen is not None and result.chosen.robots == chosen
     assert result.complete and result.bound is not None and result.bound.exact
+
+
+@settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(robots_and_task(), st.sampled_from(["exact", "mopso"]))
+def test_the_iaas_selection_answers_what_select_answers(
+    case: tuple[list[Robot], Task], optimizer: str
+) -> None:
+    robots, task = case
+    problem = CoalitionProblem.build(filter_robots(robots, task), task)
+    full = select(robots, task, optimizer, seed=3)  # type: ignore[arg-type]
+    for ranking in (True, False):
+        got = select_problem(problem, task, optimizer, seed=3, ranking=ranking)  # type: ignore[arg-type]
+        assert got.ranking == (full.ranking if ranking else ())
+        assert (got.candidates, got.pareto, got.chosen) == (
+            full.candidates,
+            full.pareto,
+            full.chosen,
+        )
+        assert (got.reason, got.pool, got.complete, got.bound, got.note) == (
+            full.reason,
+            full.pool,
+            full.complete,
+            full.bound,
+            full.note,
+        )

@@ -29,6 +29,7 @@ from robocloud.federation.messages import Dispatch, IdleQuery, Release, Reservat
 from robocloud.federation.overlay import Overlay
 from robocloud.fleet.link import RobotLink, StateListener
 from robocloud.fleet.messages import Ack, Assign
+from robocloud.selection.columns import Candidates, candidates
 from robocloud.storage import RequestStore
 
 logger = logging.getLogger(__name__)
@@ -99,6 +100,17 @@ class FederationView:
             for robot in self.link.robots()
         ]
 
+    def candidates(
+        self, task: Task, excluded: Iterable[str] = (), others: Sequence[Robot] = ()
+    ) -> Candidates:
+        """The candidates of a selection among this cloud's robots, then ``others``.
+
+        As ``filter_robots`` over ``local_robots(excluded)`` followed by
+        ``others``, read from the link's columns: no Robot is made or copied.
+        """
+        reserved = self._reservations() | set(excluded)
+        return candidates(self.link.columns(), task, reserved, others)
+
     def _reservations(self) -> set[str]:
         now = time.monotonic()
         cached = self._reserved
@@ -119,9 +131,7 @@ class FederationView:
         """
         now = time.monotonic()
         with self._lock:
-            recent = {
-                r: at for r, at in self._recent.items() if now - at < 2 * RESERVATIONS_TTL
-            }
+            recent = {r: at for r, at in self._recent.items() if now - at < 2 * RESERVATIONS_TTL}
             recent.update((r, now) for r in ids)
             self._recent = recent
 

@@ -24,6 +24,7 @@ import zenoh
 from robocloud.domain import Robot
 from robocloud.errors import Unavailable
 from robocloud.fleet import keys
+from robocloud.fleet.columns import StateColumns
 from robocloud.fleet.ingest import Refusal, StateReader
 from robocloud.fleet.messages import Ack, Assign, Cancel, State
 from robocloud.fleet.state_errors import (
@@ -32,6 +33,7 @@ from robocloud.fleet.state_errors import (
     MAX_STATE_BYTES,
     StateErrors,
 )
+from robocloud.selection.columns import FleetColumns
 
 logger = logging.getLogger(__name__)
 
@@ -53,6 +55,10 @@ class RobotLink(Protocol):
 
     def states(self) -> dict[str, State]:
         """The latest state of each robot heard from, by id."""
+        ...
+
+    def columns(self) -> FleetColumns:
+        """The robots of ``robots()`` as columns (what a selection filters)."""
         ...
 
     def state(self, robot_id: str) -> State | None:
@@ -113,6 +119,8 @@ class LatestStates:
         # joined, changed, came back or was forgotten since.
         self._listed: list[Robot] | None = None
         self._listed_until = 0.0
+        # The same robots as rows of arrays, for selections (``columns``).
+        self._columns = StateColumns()
 
     def accept(self, state: State) -> bool:
         """Keep ``state`` if it is newer than the one held; tell the listeners.
@@ -133,6 +141,9 @@ class LatestStates:
             for state in states:
                 if self._keep(state, now):
                     kept.append(state)
+            if len(self._columns.sets) > 2 * len(self._states) + 1024:
+                # Capability sets no robot has any more: start the rows again.
+                self._columns = StateColumns.of(self._states, self._received)
             listeners = list(self._listeners) if kept else []
         for listener in listeners:
             for state in kept:
@@ -169,17 +180,19 @@ class LatestStates:
                         self._refused,
                     )
                 return False
+        changed = held is None or not _same_robot(held, state)
         if held is None:
             self._order = None  # a new robot: the sorted ids are made again
             self._listed = None
         else:
-            if state.id in self._robots and not _same_robot(held, state):
+            if changed and state.id in self._robots:
                 del self._robots[state.id]  # its Robot is made again when asked for
                 self._listed = None
             elif now - self._received[state.id] > self.offline_after:
                 self._listed = None  # back from silence: listed online again
         self._states[state.id] = state
         self._received[state.id] = now
+        self._columns.put(state, now, changed)
         return True
 
     def _forget_silent(self, now: float) -> None:
@@ -190,6 +203,7 @@ class LatestStates:
             del self._states[rid], self._received[rid]
             self._robots.pop(rid, None)
         if gone:
+            self._columns = StateColumns.of(self._states, self._received)
             self._order = None
             self._listed = None
             self._refused = 0
@@ -212,6 +226,12 @@ class LatestStates:
         now = self.clock()
         with self._lock:
             return {rid: now - at for rid, at in self._received.items()}
+
+    def columns(self) -> FleetColumns:
+        """The robots of ``robots()`` as columns, without making a Robot of any."""
+        now = self.clock()
+        with self._lock:
+            return self._columns.snapshot(now - self.offline_after)
 
     def robots(self) -> list[Robot]:
         """Every robot by id; a Robot is made only for a state that changed what it says.
@@ -317,6 +337,9 @@ class ZenohRobotLink:
 
     def states(self) -> dict[str, State]:
         return self._latest.states()
+
+    def columns(self) -> FleetColumns:
+        return self._latest.columns()
 
     def state(self, robot_id: str) -> State | None:
         return self._latest.state(robot_id)

@@ -20,6 +20,7 @@ from robocloud.errors import NotFound
 from robocloud.fleet import behaviour
 from robocloud.fleet.link import NO_ANSWER, LatestStates, StateListener
 from robocloud.fleet.messages import Ack, Assign, Cancel, Phase, State, TaskProgress
+from robocloud.selection.columns import FleetColumns
 
 
 @dataclass
@@ -60,6 +61,9 @@ class MemoryRobotLink:
 
     def states(self) -> dict[str, State]:
         return self._latest.states()
+
+    def columns(self) -> FleetColumns:
+        return self._latest.columns()
 
     def state(self, robot_id: str) -> State | None:
         return self._latest.state(robot_id)

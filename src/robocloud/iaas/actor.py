@@ -24,13 +24,14 @@ from collections.abc import Awaitable, Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol, TypeVar
 
-from robocloud.domain import Robot, Task, is_final
+from robocloud.domain import Task, is_final
 from robocloud.errors import Conflict, Unavailable
 from robocloud.federation.view import FederationView
 from robocloud.fleet.messages import Assign as AssignCommand
 from robocloud.iaas import lifecycle as lc
 from robocloud.iaas.metrics import IaasMetrics
-from robocloud.selection.problem import robot_terms
+from robocloud.selection.columns import Candidates
+from robocloud.selection.problem import CoalitionProblem
 from robocloud.selection.result import SelectionResult
 from robocloud.storage import RequestRecord, RequestStore
 
@@ -43,9 +44,9 @@ STORE_RETRY_MAX = 5.0  # seconds, the longest pause between two tries of a store
 
 
 class Selector(Protocol):
-    """Runs the selection pipeline for a task over the robots in view."""
+    """Runs the selection pipeline for a task over its candidates (already filtered)."""
 
-    def __call__(self, robots: list[Robot], task: Task) -> Awaitable[SelectionResult]: ...
+    def __call__(self, problem: CoalitionProblem, task: Task) -> Awaitable[SelectionResult]: ...
 
 
 @dataclass
@@ -272,17 +273,16 @@ class RequestActor:
         gathered = await shell.blocking(shell.view.remote_robots, effect.task, exclude)
         if gathered.gather_ms > 0:  # other clouds were asked
             shell.metrics.overlay_seconds.labels("gather").observe(gathered.gather_ms / 1000)
-        held = set(shell.held())
-        local = await shell.blocking(shell.view.local_robots, held)
-        robots = [r for r in local if r.id not in exclude] + gathered.robots
+        left_out = exclude | set(shell.held())
+        found = await shell.blocking(shell.view.candidates, effect.task, left_out, gathered.robots)
         started = shell.mono()
-        result = await shell.selector(robots, effect.task)
+        result = await shell.selector(found.problem, effect.task)
         shell.metrics.selection_seconds.observe(shell.mono() - started)
         selection = selection_json(result)
         notes = (*gathered.notes, *([result.note] if result.note else []))
         if result.chosen is None:
             return lc.Selected(None, selection, result.reason, notes, result.complete)
-        chosen = members_for(robots, effect.task, result.chosen.robots, effect.offset)
+        chosen = members_for(found, result.chosen.robots, effect.offset)
         # Other selections see them as taken until the reservation is done.
         shell.claim(self.request_id, result.chosen.robots)
         return lc.Selected(chosen, selection, None, notes, result.complete)
@@ -328,9 +328,7 @@ class RequestActor:
             )
         )
 
-    async def _timed(
-        self, command: str, cloud: str, call: Callable[..., T], *args: Any
-    ) -> T:
+    async def _timed(self, command: str, cloud: str, call: Callable[..., T], *args: Any) -> T:
         """A command to one robot, its wait measured: an ack here, the overlay for a loan."""
         shell = self.shell
         started = shell.mono()
@@ -361,26 +359,27 @@ def command_for(request_id: str, member: lc.Member, task: Task) -> AssignCommand
 
 
 def members_for(
-    robots: Sequence[Robot], task: Task, ids: Sequence[str], offset: float = 0.0
+    found: Candidates, ids: Sequence[str], offset: float = 0.0
 ) -> tuple[lc.Member, ...]:
     """The chosen robots with the capabilities each brings, its t_i and c_i."""
-    wanted = set(ids)  # a few among perhaps 50,000
-    by_id = {robot.id: robot for robot in robots if robot.id in wanted}
-    chosen = [by_id[i] for i in ids]
-    terms = robot_terms(chosen, task)
-    return tuple(
-        lc.Member(
-            robot=robot.id,
-            cloud=robot.cloud,
-            capabilities=tuple(
-                name for k, name in enumerate(terms.capabilities) if terms.uses[i, k]
-            ),
-            time=float(terms.time[i]),
-            cost=float(terms.cost[i]),
-            offset=offset,
+    problem = found.problem
+    index = {robot: i for i, robot in enumerate(problem.ids)}
+    members = []
+    for robot in ids:
+        i = index[robot]
+        members.append(
+            lc.Member(
+                robot=robot,
+                cloud=found.clouds[i],
+                capabilities=tuple(
+                    name for k, name in enumerate(problem.capabilities) if problem.uses[i, k]
+                ),
+                time=float(problem.time[i]),
+                cost=float(problem.cost[i]),
+                offset=offset,
+            )
         )
-        for i, robot in enumerate(chosen)
-    )
+    return tuple(members)
 
 
 def selection_json(result: SelectionResult) -> dict[str, Any]:

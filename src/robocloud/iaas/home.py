@@ -62,6 +62,7 @@ from robocloud.federation.messages import (
 from robocloud.federation.overlay import Overlay
 from robocloud.fleet.link import RobotLink
 from robocloud.fleet.messages import Ack, State
+from robocloud.selection.columns import OFFLINE
 from robocloud.storage import Loan, RequestStore
 from robocloud.storage.rules import utc_now
 
@@ -535,10 +536,15 @@ class Home:
     def _ask_origins(self, overlay: Overlay) -> None:
         """Ask each origin about its requests; end the loans it no longer uses, or waited out."""
         now = self._monotonic()
-        states = self.link.states()
-        silent = {robot.id for robot in self.link.robots() if robot.status == "offline"}
+        loans = self.store.loans()
+        states: dict[str, State] = {}
+        silent: set[str] = set()
+        if loans:  # most clouds lend nothing: no need to visit 50,000 robots every 5 s
+            states = self.link.states()
+            columns = self.link.columns()
+            silent = set(columns.id_array[columns.status == OFFLINE].tolist())
         by_origin: dict[str, list[Loan]] = defaultdict(list)
-        for loan in self.store.loans():
+        for loan in loans:
             if loan.robot not in silent and _working(states.get(loan.robot), loan.request_id):
                 self._worked_at[loan.robot] = now
             # Leases not yet dispatched lapse by themselves.

@@ -4,9 +4,10 @@ The selection pipeline is pure CPU work; on the event loop's process it would
 hold the GIL and stall every other request. Here it runs in a small pool of
 worker processes (``spawn``: they share nothing with the IaaS's threads):
 
-- the IaaS filters the robots first (Algorithm 2, cheap) and sends the
-  candidates only, as plain tuples (pickling pydantic models costs more than
-  selecting among them);
+- the IaaS filters its robots first (Algorithm 2, a vectorised mask over the
+  link's columns, ``robocloud.selection.columns``) and sends the candidates'
+  ``CoalitionProblem`` only: their ids and a few arrays, which pickle in a
+  fraction of a millisecond (Robots or tuples of 8,000 candidates took tens);
 - each selection is given a time budget (``select``'s ``budget_s``: a cut
   search returns the best front found so far, said so in the result); a worker
   that has not answered ``grace`` seconds after its budget is killed and
@@ -24,67 +25,20 @@ import contextlib
 import logging
 import multiprocessing
 import time
-from collections.abc import Awaitable, Callable, Sequence
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
 from typing import Any
 
-from robocloud.domain import Capability, Robot, Task
-from robocloud.selection.filtering import filter_robots
+import numpy as np
+
+from robocloud.domain import Task
+from robocloud.selection.problem import CoalitionProblem
 from robocloud.selection.result import SelectionResult
 
 log = logging.getLogger(__name__)
 
-Wire = tuple[Any, ...]  # a robot as plain values, see ``to_wire``
 READY = "ready"
-_MAX_WIRES = 200_000  # robots remembered in their wire form (in the IaaS)
-_MAX_ROBOTS = 50_000  # robots remembered as Robots in a worker (about 2 KB each)
-
-
-def to_wire(robot: Robot) -> Wire:
-    caps = tuple((n, c.kind, c.time, c.cost) for n, c in robot.capabilities.items())
-    x, y = robot.position
-    return (
-        robot.id,
-        robot.cloud,
-        x,
-        y,
-        robot.speed,
-        robot.battery,
-        robot.status,
-        robot.travel_cost_per_m,
-        caps,
-    )
-
-
-def from_wire(wire: Wire) -> Robot:
-    """The robot again; its values were validated where it came from (its state message)."""
-    rid, cloud, x, y, speed, battery, status, travel, caps = wire
-    return Robot.model_construct(
-        id=rid,
-        cloud=cloud,
-        position=[x, y],
-        speed=speed,
-        battery=battery,
-        status=status,
-        travel_cost_per_m=travel,
-        capabilities={n: Capability.model_construct(kind=k, time=t, cost=c) for n, k, t, c in caps},
-    )
-
-
-# In a worker: the Robot of each wire form seen lately. Robots that did not
-# change come again as equal tuples, and making 8,000 Robots took longer than
-# selecting among them.
-_ROBOTS: dict[Wire, Robot] = {}
-
-
-def _robot_of(wire: Wire) -> Robot:
-    robot = _ROBOTS.get(wire)
-    if robot is None:
-        if len(_ROBOTS) >= _MAX_ROBOTS:
-            _ROBOTS.clear()
-        robot = _ROBOTS[wire] = from_wire(wire)
-    return robot
 
 
 def serve(conn: Connection, memory_mb: int) -> None:
@@ -96,28 +50,52 @@ def serve(conn: Connection, memory_mb: int) -> None:
     import resource
     import signal
 
-    from robocloud.selection.pipeline import select
+    from robocloud.selection.pipeline import select_problem
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     limit = memory_mb * 1024 * 1024
     resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+    with contextlib.suppress(Exception):  # a real selection says what is wrong
+        _warm_up(select_problem)
     try:
         conn.send(READY)
-        _answer_until_closed(conn, memory_mb, select)
+        _answer_until_closed(conn, memory_mb, select_problem)
     except (EOFError, OSError):
         return  # the IaaS went away
+
+
+def _warm_up(select: Any) -> None:
+    """One small selection before the first real one: it pays the first calls' costs
+    (lazy imports, the solver's set-up), which made a worker's first selection
+    several times slower than the next ones."""
+    from robocloud.selection.problem import RobotTerms
+
+    task = Task.model_validate(
+        {"location": [0.0, 0.0], "sensing": {"s": 1}, "actuating": {"a": 1},
+         "max_robots": 2, "max_cost": 100.0, "max_time": 100.0}
+    )  # fmt: skip
+    uses = np.array([[True, False], [False, True], [True, True], [False, True]])
+    terms = RobotTerms(
+        time=np.array([3.0, 2.0, 5.0, 1.0]),
+        cost=np.array([1.0, 2.0, 2.5, 4.0]),
+        uses=uses,
+        capabilities=tuple(task.required),
+    )
+    problem = CoalitionProblem.of_terms(("w-0", "w-1", "w-2", "w-3"), terms, task)
+    for optimizer in ("exact", "mopso"):
+        select(problem, task, optimizer, budget_s=1.0, ranking=False)
 
 
 def _answer_until_closed(conn: Connection, memory_mb: int, select: Any) -> None:
     while True:
         message = conn.recv()
-        wires, task_json, optimizer, seed, budget_s = message
+        problem, task_json, optimizer, seed, budget_s = message
         try:
-            robots = [_robot_of(w) for w in wires]
             task = Task.model_validate(task_json)
             answer: tuple[str, Any] = (
                 "ok",
-                select(robots, task, optimizer, seed=seed, budget_s=budget_s),
+                # The IaaS keeps no ranking (``failed`` has none either).
+                select(problem, task, optimizer, seed=seed, budget_s=budget_s, ranking=False),
             )
         except MemoryError:
             answer = ("error", f"the selection needed more than its {memory_mb} MB of memory")
@@ -208,12 +186,12 @@ class SelectionPool:
             return self._spawn()
         return await self._idle.get()
 
-    async def __call__(self, robots: Sequence[Robot], task: Task) -> SelectionResult:
+    async def __call__(self, problem: CoalitionProblem, task: Task) -> SelectionResult:
         settings = self.settings
         started = time.perf_counter()
-        candidates = await self._blocking(_candidates, robots, task)
+        candidates = problem.ids
         message = (
-            candidates,
+            problem,
             task.model_dump(mode="json"),
             settings.optimizer,
             settings.seed,
@@ -255,24 +233,6 @@ class SelectionPool:
         for worker in list(self._workers):
             worker.close()
         self._workers.clear()
-
-
-# The wire form of each robot last sent, by id: the robot link keeps a Robot
-# while its states repeat it, so most candidates are the same objects from one
-# selection to the next and need not be made into tuples again.
-_WIRES: dict[str, tuple[Robot, Wire]] = {}
-
-
-def _candidates(robots: Sequence[Robot], task: Task) -> list[Wire]:
-    wires = []
-    for robot in filter_robots(robots, task):
-        known = _WIRES.get(robot.id)
-        if known is None or known[0] is not robot:
-            if len(_WIRES) >= _MAX_WIRES:
-                _WIRES.clear()
-            known = _WIRES[robot.id] = (robot, to_wire(robot))
-        wires.append(known[1])
-    return wires
 
 
 def failed(

@@ -26,7 +26,7 @@ from typing import Any, TypeVar
 
 from pydantic import ValidationError
 
-from robocloud.domain import Robot, Task, is_final
+from robocloud.domain import Task, is_final
 from robocloud.errors import (
     Conflict,
     InvalidInput,
@@ -42,7 +42,8 @@ from robocloud.iaas.actor import RequestActor, Selector, Shell
 from robocloud.iaas.config import Settings
 from robocloud.iaas.metrics import IaasMetrics
 from robocloud.iaas.selector import SelectionPool, SelectorSettings
-from robocloud.selection.pipeline import select
+from robocloud.selection.pipeline import select_problem
+from robocloud.selection.problem import CoalitionProblem
 from robocloud.selection.result import SelectionResult
 from robocloud.storage import RequestRecord, RequestStore, StoreUnavailable
 
@@ -199,14 +200,15 @@ class RequestService:
 
         task.add_done_callback(ended)
 
-    async def _select_in_thread(self, robots: list[Robot], task: Task) -> SelectionResult:
+    async def _select_in_thread(self, problem: CoalitionProblem, task: Task) -> SelectionResult:
         result: SelectionResult = await asyncio.to_thread(
-            select,
-            robots,
+            select_problem,
+            problem,
             task,
             self.settings.optimizer,  # type: ignore[arg-type]
             seed=self.settings.seed,
             budget_s=self.settings.selection_budget,
+            ranking=False,  # the IaaS keeps none
         )
         return result
 
@@ -292,8 +294,10 @@ class RequestService:
             self.store_failed(self.store.reservations)
             held = {}
         return [
-            (robot.cloud, "reserved" if robot.status == "idle" and robot.id in held
-             else robot.status)
+            (
+                robot.cloud,
+                "reserved" if robot.status == "idle" and robot.id in held else robot.status,
+            )
             for robot in self.link.robots()
         ]
 

@@ -45,7 +45,7 @@ from robocloud.domain.numeric import ABS_TOL, REL_TOL
 from robocloud.selection.budget import NO_DEADLINE, Deadline
 from robocloud.selection.covering import CoverResult, CoverSolver
 from robocloud.selection.pareto import pareto_front
-from robocloud.selection.problem import CoalitionProblem, IntArray
+from robocloud.selection.problem import BoolArray, CoalitionProblem, IntArray
 
 _BLOCK = 128
 # Dominance pruning compares each class with its superset classes; past this
@@ -96,8 +96,7 @@ def prune(problem: CoalitionProblem) -> IntArray:
         )
     ]
     uses = problem.uses[order]
-    classes, member = np.unique(uses, axis=0, return_inverse=True)
-    member = member.reshape(-1)
+    classes, member = capability_classes(uses)
     if len(classes) > PRUNE_CLASSES or limit < 1:
         return np.asarray(order, dtype=np.int64)
     cost = problem.cost[order]
@@ -128,6 +127,25 @@ def prune(problem: CoalitionProblem) -> IntArray:
         dominated = kth[np.arange(c.size) // _BLOCK] < c - margin
         survives[supersets[own & ~dominated]] = True
     return np.asarray(order[survives], dtype=np.int64)
+
+
+def capability_classes(uses: BoolArray) -> tuple[BoolArray, IntArray]:
+    """``np.unique(uses, axis=0, return_inverse=True)``: the distinct rows, sorted, and each
+    row's class.
+
+    Rows of up to 62 capabilities are packed into integers first (the first
+    capability the most significant bit, so the integers sort as the rows
+    do): sorting integers is some forty times faster than sorting rows.
+    """
+    k = uses.shape[1]
+    if k > 62:
+        classes, member = np.unique(uses, axis=0, return_inverse=True)
+        return classes, member.reshape(-1)
+    shifts = np.arange(k - 1, -1, -1, dtype=np.int64)
+    codes = uses.astype(np.int64) @ (np.int64(1) << shifts)
+    distinct, member = np.unique(codes, return_inverse=True)
+    classes = ((distinct[:, None] >> shifts) & 1).astype(bool)
+    return classes, member.reshape(-1)
 
 
 @dataclass(frozen=True)

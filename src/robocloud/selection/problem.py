@@ -63,14 +63,33 @@ def robot_terms(robots: Sequence[RobotLike], task: Task) -> RobotTerms:
     uses[rows, columns] = True
     cap_time[rows, columns] = times
     cap_cost[rows, columns] = costs
-    distance = np.hypot(position[:, 0] - task.location[0], position[:, 1] - task.location[1])
+    return terms_of(position[:, 0], position[:, 1], speed, travel, cap_time, cap_cost, uses, task)
+
+
+def terms_of(
+    x: FloatArray,
+    y: FloatArray,
+    speed: FloatArray,
+    travel: FloatArray,
+    cap_time: FloatArray,
+    cap_cost: FloatArray,
+    uses: BoolArray,
+    task: Task,
+) -> RobotTerms:
+    """t_i, c_i and U_i from the robots' columns (``cap_*`` and ``uses``: one column per
+    required capability, in ``task.required``'s order, zero where a robot lacks it).
+
+    ``robot_terms`` and the columnar fleet (``robocloud.selection.columns``)
+    both end here, so their numbers agree bit for bit.
+    """
+    distance = np.hypot(x - task.location[0], y - task.location[1])
     if task.execution == "parallel":
         execution = cap_time.max(axis=1, initial=0.0)
     else:
         execution = cap_time.sum(axis=1)
     time = distance / speed + execution
     cost = travel * distance + cap_cost.sum(axis=1)
-    return RobotTerms(time=time, cost=cost, uses=uses, capabilities=names)
+    return RobotTerms(time=time, cost=cost, uses=uses, capabilities=tuple(task.required))
 
 
 @dataclass(frozen=True)
@@ -93,9 +112,14 @@ class CoalitionProblem:
 
     @classmethod
     def build(cls, candidates: Sequence[RobotLike], task: Task) -> CoalitionProblem:
-        terms = robot_terms(candidates, task)
+        ids = tuple(robot.id for robot in candidates)
+        return cls.of_terms(ids, robot_terms(candidates, task), task)
+
+    @classmethod
+    def of_terms(cls, ids: tuple[str, ...], terms: RobotTerms, task: Task) -> CoalitionProblem:
+        """The problem of the candidates ``ids``, whose terms are ``terms``."""
         return cls(
-            ids=tuple(robot.id for robot in candidates),
+            ids=ids,
             time=terms.time,
             cost=terms.cost,
             uses=terms.uses,

@@ -203,5 +203,5 @@ def rank_order(ids: Sequence[str], phi: npt.ArrayLike) -> list[int]:
         raise ValueError("one phi per id is needed")
     if not ids:
         return []
-    order = np.lexsort((np.asarray(ids, dtype=str), -scores))
-    return [int(i) for i in order]
+    order: list[int] = np.lexsort((np.asarray(ids, dtype=str), -scores)).tolist()
+    return order

@@ -2,11 +2,14 @@
 
 import argparse
 import signal
+import socket
 import subprocess
 import sys
 import time
 
+import httpx
 import pytest
+from prometheus_client.parser import text_string_to_metric_families
 from sim_testing import free_endpoint, wait_until
 
 from robocloud.errors import InvalidInput
@@ -14,8 +17,21 @@ from robocloud.fleet import Assign, ZenohRobotLink, open_router
 from robocloud.sim.command import add_sim_arguments, main, sim_command
 
 
+def scrape(port: int) -> dict[tuple[str, tuple[tuple[str, str], ...]], float]:
+    """The simulator's /metrics as {(name, labels): value}."""
+    text = httpx.get(f"http://127.0.0.1:{port}/metrics", timeout=5).text
+    return {
+        (sample.name, tuple(sorted(sample.labels.items()))): sample.value
+        for family in text_string_to_metric_families(text)
+        for sample in family.samples
+    }
+
+
 def test_the_simulator_process_serves_its_robots_and_stops_on_sigterm() -> None:
     endpoint = free_endpoint()
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        metrics_port = sock.getsockname()[1]
     process = subprocess.Popen(
         [
             sys.executable,
@@ -32,6 +48,8 @@ def test_the_simulator_process_serves_its_robots_and_stops_on_sigterm() -> None:
             "--speedup",
             "20",
             "--no-churn",
+            "--metrics",
+            f"127.0.0.1:{metrics_port}",
         ],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
@@ -56,6 +74,23 @@ def test_the_simulator_process_serves_its_robots_and_stops_on_sigterm() -> None:
         busy = next((s for s in states.values() if s.status != "idle"), None)
         if busy is not None:
             assert not link.assign(busy.id, here.model_copy(update={"request_id": "r-2"})).ok
+        # Its metrics (docs/metrics.md) say what it did.
+        first = scrape(metrics_port)
+        robots = {dict(labels)["status"]: v for (name, labels), v in first.items()
+                  if name == "robocloud_sim_robots"}
+        assert sum(robots.values()) == 12 and robots["idle"] >= 1
+        assigned = ("assign", "accepted")
+        assert first["robocloud_sim_commands_total", (("command", assigned[0]),
+                                                      ("outcome", assigned[1]))] == 1
+        if busy is not None:
+            assert first["robocloud_sim_commands_total", (("command", "assign"),
+                                                          ("outcome", "refused"))] == 1
+        published = first["robocloud_sim_states_published_total", ()]
+        assert published >= 12
+        assert wait_until(
+            lambda: scrape(metrics_port)["robocloud_sim_states_published_total", ()] > published,
+            timeout=5.0,
+        )
         process.send_signal(signal.SIGTERM)
         assert process.wait(timeout=10) == 0
         link.close()

@@ -21,6 +21,7 @@ from robocloud.errors import RoboCloudError
 from robocloud.federation import security
 from robocloud.fleet import keys
 from robocloud.sim.fleet import run_simulator
+from robocloud.sim.metrics import metrics_address
 
 
 def add_sim_arguments(parser: argparse.ArgumentParser) -> None:
@@ -61,6 +62,12 @@ def add_sim_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="NAME",
         help="act as a fleet gateway named NAME: publish the robots' states in batches on "
         "robocloud/<cloud>/fleets/NAME/states instead of a key per robot (for large fleets)",
+    )
+    parser.add_argument(
+        "--metrics",
+        type=metrics_address,
+        metavar="HOST:PORT",
+        help="serve Prometheus metrics at http://HOST:PORT/metrics (docs/metrics.md)",
     )
     security.add_arguments(parser, router=False)
 
@@ -103,6 +110,7 @@ def _run(args: argparse.Namespace, stop: threading.Event) -> int:
         connect_timeout=args.connect_timeout,
         security=overlay_security,
         gateway=args.gateway,
+        metrics=args.metrics,
     )
     return 0
 

@@ -45,6 +45,7 @@ from robocloud.fleet.state_errors import MAX_BATCH_STATES
 from robocloud.fleet.zenoh_session import SessionSecurity, open_client
 from robocloud.sim.churn import Churn
 from robocloud.sim.control import Fault, FaultName
+from robocloud.sim.metrics import serve_metrics
 from robocloud.sim.robot import SimRobot
 from robocloud.sim.roster import cloud_robots
 
@@ -120,10 +121,21 @@ class FleetSimulator:
         self._next_publish = np.zeros(len(self._robots))
         self.ticks = 0
         self.late_ticks = 0
+        # For the metrics (robocloud.sim.metrics): plain counters, read at a scrape.
+        self.states_published = 0
+        self.commands_answered: dict[tuple[str, str], int] = {}
 
     @property
     def robot_ids(self) -> list[str]:
         return [robot.id for robot in self._robots]
+
+    def status_counts(self) -> dict[str, int]:
+        """How many robots are in each status now."""
+        counts: dict[str, int] = {}
+        with self._lock:
+            for robot in self._robots:
+                counts[robot.status] = counts.get(robot.status, 0) + 1
+        return counts
 
     # Life cycle -------------------------------------------------------------
 
@@ -226,6 +238,7 @@ class FleetSimulator:
                 robot = self._robots[i]
                 if i not in published and not robot.silent:
                     outgoing.append((i, robot.wire_state(wall) if batched else robot.state(wall)))
+        self.states_published += len(outgoing)
         if self._batches is not None:
             self._publish_batches(self._batches, [state for _, state in outgoing])
             return
@@ -286,6 +299,8 @@ class FleetSimulator:
                     ack = robot.assign(command)
                 case Cancel():
                     ack = robot.cancel(command.request_id)
+            counted = (command.type, "accepted" if ack.ok else "refused")
+            self.commands_answered[counted] = self.commands_answered.get(counted, 0) + 1
         logger.debug("%s %s -> %s", robot.id, command.type, ack)
         return ack
 
@@ -321,6 +336,7 @@ def run_simulator(
     connect_timeout: float = 10.0,
     security: SessionSecurity | None = None,
     gateway: str | None = None,
+    metrics: tuple[str, int] | None = None,
 ) -> None:
     """Simulate ``n_robots`` robots of ``cloud`` connected to the router at ``connect``.
 
@@ -328,6 +344,7 @@ def run_simulator(
     ``connect_timeout`` seconds for the router. ``security``: TLS or a login
     (``robocloud.federation.security.OverlaySecurity``), as the router asks.
     ``gateway``: publish the states in batches as that gateway (see ``FleetSimulator``).
+    ``metrics``: (host, port) to serve Prometheus metrics on (``robocloud.sim.metrics``).
     """
     robots = cloud_robots(cloud, n_robots, seed)
     stop = stop_event or threading.Event()
@@ -335,7 +352,16 @@ def run_simulator(
     try:
         with FleetSimulator(
             cloud, robots, session, speedup=speedup, seed=seed, churn=churn, gateway=gateway
-        ):
+        ) as simulator:
+            if metrics is not None:
+                host, port = metrics
+                try:
+                    serve_metrics(simulator, host, port)
+                except OSError as error:
+                    raise InvalidInput(
+                        f"--metrics {host}:{port}: cannot listen there ({error.strerror}).",
+                        field="--metrics",
+                    ) from None
             stop.wait()
     finally:
         session.close()  # type: ignore[no-untyped-call]

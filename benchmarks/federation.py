@@ -34,7 +34,7 @@ from typing import Any
 import httpx
 
 from benchmarks.report import Column, Goal, SectionReport, Table
-from benchmarks.service import TASK, _at, _median, _p99, _port, _wait
+from benchmarks.service import TASK, _at, _median, _p99, _port, _wait, terminate_all
 
 ROBOTS = 300
 
@@ -78,13 +78,7 @@ def federation(workdir: Path, counts: dict[str, int]) -> Iterator[tuple[str, str
               60)
         yield urls[0], key
     finally:
-        for p in processes:
-            p.terminate()
-        for p in processes:
-            try:
-                p.wait(10)
-            except subprocess.TimeoutExpired:
-                p.kill()
+        terminate_all(processes)
 
 
 def cross_cloud(workdir: Path, posts: int) -> dict[str, dict[str, Any]]:

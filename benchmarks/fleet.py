@@ -41,7 +41,7 @@ import httpx
 import numpy as np
 
 from benchmarks.report import Column, Goal, SectionReport, Table, render_text
-from benchmarks.service import TASK, _at, _port
+from benchmarks.service import TASK, _at, _port, terminate_all
 
 SIZES = (5_000, 20_000, 50_000)
 QUICK_SIZES = (5_000,)
@@ -67,14 +67,7 @@ def _processes() -> Iterator[list[subprocess.Popen[bytes]]]:
     try:
         yield processes
     finally:
-        for p in processes:
-            p.terminate()
-        for p in processes:
-            try:
-                p.wait(15)
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait(5)
+        terminate_all(processes, wait=15)
 
 
 def _count(client: httpx.Client) -> int:

@@ -62,6 +62,18 @@ class Running:
     iaas: list[subprocess.Popen[bytes]]
 
 
+def terminate_all(processes: list[subprocess.Popen[bytes]], wait: float = 10.0) -> None:
+    """SIGTERM to every process, then wait for each; a process still there is killed."""
+    for p in processes:
+        p.terminate()
+    for p in processes:
+        try:
+            p.wait(wait)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait(5)
+
+
 @contextlib.contextmanager
 def clouds(
     workdir: Path, counts: list[int], speedup: float = 1.0, churn: bool = False
@@ -104,13 +116,7 @@ def clouds(
                                         timeout=5).json()) == len(urls), 30)
         yield Running(urls, endpoints, key, iaas)
     finally:
-        for p in processes:
-            p.terminate()
-        for p in processes:
-            try:
-                p.wait(10)
-            except subprocess.TimeoutExpired:
-                p.kill()
+        terminate_all(processes)
 
 
 def _wait(predicate: Any, timeout: float) -> None:

@@ -129,11 +129,16 @@ def test_a_robot_failure_is_alerted_with_the_new_time_and_cost(page: Any, system
     want(page, {most_idle(page, "actuating"): 1})
     request_id = send(page)
     state = page.locator("#state-head")
+    expect(state).to_have_attribute("data-request", request_id)
     expect(state).to_have_attribute("data-state", "underway", timeout=20_000)
+    # The victim is taken from the API (the truth), then looked for on the page,
+    # whose coalition table may still be catching up with the request.
+    with system.iaas() as client:
+        sent = client.get(f"/v1/requests/{request_id}").json()
+    victim = sent["coalition"][0]["robot"]
+    cloud = sent["coalition"][0]["cloud"]
+    expect(page.locator(f"#coalition tbody tr[data-robot='{victim}']")).to_have_count(1)
     before = {"time": page.inner_text("#stat-time"), "cost": page.inner_text("#stat-cost")}
-    robots = page.eval_on_selector_all("#coalition tbody tr", "rs => rs.map(r => r.dataset.robot)")
-    victim = robots[0]
-    cloud = page.get_attribute(f"#map .robot[data-robot='{victim}']", "data-cloud")
     assert system.fault(cloud, victim, "battery")["ok"] is True
 
     banner = page.locator("#banner")

@@ -57,7 +57,9 @@ def two_clouds(tmp_path: Path) -> Iterator[tuple[ZenohOverlay, Home]]:
     home_b = Home("cloud-b", store, link, lease_max=3600)  # no lease lapses during the test
     home_a = Home("cloud-a", MemoryRequestStore(), MemoryRobotLink("cloud-a"))
     b = ZenohOverlay(b_session, "cloud-b", home_b)
-    a = ZenohOverlay(a_session, "cloud-a", home_a)
+    # The calls wait up to 5 s (1 s by default): the test counts loans, not time, and a
+    # loaded machine (two test workers beside other work) can stall a call past 1 s.
+    a = ZenohOverlay(a_session, "cloud-a", home_a, timeout=5.0)
     try:
         assert wait_for_liveliness(a_session, cloud_token("cloud-b"), 5.0)
         yield a, home_b

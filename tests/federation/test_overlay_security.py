@@ -470,6 +470,11 @@ def federation(
     for session in routers.values():
         for name in routers:
             assert wait_for_liveliness(session, f"{CLOUDS_TOKEN}/{name}", 5.0)
+    # Each overlay learns the tokens from its own subscriber, a moment later.
+    deadline = time.monotonic() + 5.0
+    while any(o.clouds() != sorted(routers) for o in overlays.values()):
+        assert time.monotonic() < deadline, {n: o.clouds() for n, o in overlays.items()}
+        time.sleep(0.02)
     yield Federation(endpoints, routers, desks, overlays)
     for overlay in overlays.values():
         overlay.close()

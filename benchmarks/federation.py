@@ -18,7 +18,6 @@
 from __future__ import annotations
 
 import contextlib
-import json
 import os
 import random
 import secrets
@@ -34,7 +33,7 @@ from typing import Any
 import httpx
 
 from benchmarks.report import Column, Goal, SectionReport, Table
-from benchmarks.service import TASK, _at, _median, _p99, _port, _wait, terminate_all
+from benchmarks.service import _median, _p99, _port, _wait, measure_dispatch, terminate_all
 
 ROBOTS = 300
 
@@ -100,7 +99,7 @@ def cross_cloud(workdir: Path, posts: int) -> dict[str, dict[str, Any]]:
     ):
         for i in range(posts):
             for name, client in (("one", one), ("cross", cross)):
-                _measure(client, i, results[name])
+                measure_dispatch(client, f"bench {i}", results[name])
     return results
 
 
@@ -109,28 +108,6 @@ def _client(url: str, key: str) -> Iterator[httpx.Client]:
     headers = {"Authorization": f"Bearer {key}"}
     with httpx.Client(base_url=url, headers=headers, timeout=30) as client:
         yield client
-
-
-def _measure(client: httpx.Client, i: int, into: dict[str, Any]) -> None:
-    """One request: POST, follow its events until dispatched, cancel it (as service.py does)."""
-    started = time.perf_counter()
-    rid = client.post("/v1/requests", json={**TASK, "label": f"bench {i}"}).json()["id"]
-    state = None
-    with client.stream("GET", f"/v1/requests/{rid}/events") as events:
-        for line in events.iter_lines():
-            if line.startswith("data:"):
-                state = json.loads(line[5:])
-                if state["state"] not in ("received", "selecting"):
-                    break
-    elapsed = (time.perf_counter() - started) * 1000
-    into["sent"] += 1
-    assert state is not None
-    if state["state"] in ("dispatched", "underway"):
-        into["client"].append(elapsed)
-        at = {h["state"]: _at(h["at"]) for h in state["history"] if h["kind"] == "state"}
-        into["server"].append((at["dispatched"] - at["received"]) * 1000)
-        into["remote"] += any(a["cloud"] != "cloud-a" for a in state["coalition"])
-        client.post(f"/v1/requests/{rid}/cancel")
 
 
 def loan_lookups(sizes: tuple[int, ...], reps: int) -> list[dict[str, Any]]:

@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import json
 import os
 import secrets
 import statistics
@@ -41,7 +40,7 @@ import httpx
 import numpy as np
 
 from benchmarks.report import Column, Goal, SectionReport, Table, render_text
-from benchmarks.service import TASK, _at, _port, terminate_all
+from benchmarks.service import _port, post_to_dispatched, terminate_all
 
 SIZES = (5_000, 20_000, 50_000)
 QUICK_SIZES = (5_000,)
@@ -76,39 +75,6 @@ def _count(client: httpx.Client) -> int:
     except httpx.TransportError:
         return -1
     return int(answer.json()["robots"]) if answer.status_code == 200 else -1
-
-
-def post_to_dispatched(url: str, key: str, count: int, limit: float) -> dict[str, Any]:
-    """Up to ``count`` sequential requests, each canceled once dispatched, for ``limit`` s at most.
-
-    As ``benchmarks.service.post_to_dispatched``, bounded in time: a fleet
-    where a request takes seconds still ends.
-    """
-    client_ms: list[float] = []
-    server_ms: list[float] = []
-    sent = 0
-    headers = {"Authorization": f"Bearer {key}"}
-    deadline = time.monotonic() + limit
-    with httpx.Client(base_url=url, headers=headers, timeout=30) as client:
-        while sent < count and time.monotonic() < deadline:
-            started = time.perf_counter()
-            body = {**TASK, "label": f"fleet bench {sent}"}
-            rid = client.post("/v1/requests", json=body).json()["id"]
-            sent += 1
-            state = None
-            with client.stream("GET", f"/v1/requests/{rid}/events") as events:
-                for line in events.iter_lines():
-                    if line.startswith("data:"):
-                        state = json.loads(line[5:])
-                        if state["state"] not in ("received", "selecting"):
-                            break
-            elapsed = (time.perf_counter() - started) * 1000
-            if state is not None and state["state"] in ("dispatched", "underway"):
-                client_ms.append(elapsed)
-                at = {h["state"]: _at(h["at"]) for h in state["history"] if h["kind"] == "state"}
-                server_ms.append((at["dispatched"] - at["received"]) * 1000)
-                client.post(f"/v1/requests/{rid}/cancel")
-    return {"client": client_ms, "server": server_ms, "sent": sent}
 
 
 def one_size(
@@ -166,7 +132,7 @@ def one_size(
         row["heard"] = _count(client)
         if seen > 0 and dispatches > 0:
             try:
-                got = post_to_dispatched(url, key, dispatches, DISPATCH_FOR)
+                got = post_to_dispatched(url, key, dispatches, DISPATCH_FOR, label="fleet bench")
             except (httpx.HTTPError, AssertionError, KeyError) as error:
                 print(f"  {n}: the dispatches failed: {error}", file=sys.stderr, flush=True)
                 got = {"client": [], "server": [], "sent": dispatches}

@@ -133,31 +133,48 @@ def _at(text: str) -> float:
     return datetime.fromisoformat(text.replace("Z", "+00:00")).timestamp()
 
 
-def post_to_dispatched(url: str, key: str, count: int) -> dict[str, Any]:
-    """Sequential requests, each canceled once dispatched; latencies in ms."""
-    client_ms, server_ms, remote = [], [], 0
+def measure_dispatch(client: httpx.Client, label: str, into: dict[str, Any]) -> None:
+    """One request: POST, follow its events until it is decided, cancel it once dispatched.
+
+    Adds to ``into``: ``sent``; and when dispatched the client's time (``client``,
+    ms from the POST), the server's (``server``, received to dispatched in the
+    history) and whether a robot came from another cloud than cloud-a (``remote``).
+    """
+    started = time.perf_counter()
+    rid = client.post("/v1/requests", json={**TASK, "label": label}).json()["id"]
+    into["sent"] += 1
+    state = None
+    with client.stream("GET", f"/v1/requests/{rid}/events") as events:
+        for line in events.iter_lines():
+            if line.startswith("data:"):
+                state = json.loads(line[5:])
+                if state["state"] not in ("received", "selecting"):
+                    break
+    elapsed = (time.perf_counter() - started) * 1000
+    assert state is not None
+    if state["state"] in ("dispatched", "underway"):
+        into["client"].append(elapsed)
+        at = {h["state"]: _at(h["at"]) for h in state["history"] if h["kind"] == "state"}
+        into["server"].append((at["dispatched"] - at["received"]) * 1000)
+        into["remote"] += any(a["cloud"] != "cloud-a" for a in state["coalition"])
+        client.post(f"/v1/requests/{rid}/cancel")
+
+
+def post_to_dispatched(
+    url: str, key: str, count: int, limit: float | None = None, label: str = "bench"
+) -> dict[str, Any]:
+    """Up to ``count`` sequential requests, each canceled once dispatched; latencies in ms.
+
+    ``limit``: no new request after that many seconds, so a fleet where a
+    request takes seconds still ends.
+    """
+    into: dict[str, Any] = {"client": [], "server": [], "remote": 0, "sent": 0}
     headers = {"Authorization": f"Bearer {key}"}
+    deadline = None if limit is None else time.monotonic() + limit
     with httpx.Client(base_url=url, headers=headers, timeout=30) as client:
-        for i in range(count):
-            started = time.perf_counter()
-            rid = client.post("/v1/requests", json={**TASK, "label": f"bench {i}"}).json()["id"]
-            state = None
-            with client.stream("GET", f"/v1/requests/{rid}/events") as events:
-                for line in events.iter_lines():
-                    if line.startswith("data:"):
-                        state = json.loads(line[5:])
-                        if state["state"] not in ("received", "selecting"):
-                            break
-            elapsed = (time.perf_counter() - started) * 1000
-            assert state is not None
-            if state["state"] in ("dispatched", "underway"):
-                client_ms.append(elapsed)
-                at = {h["state"]: _at(h["at"]) for h in state["history"] if h["kind"] == "state"}
-                server_ms.append((at["dispatched"] - at["received"]) * 1000)
-                clouds = {a["cloud"] for a in state["coalition"]}
-                remote += any(c != "cloud-a" for c in clouds)
-                client.post(f"/v1/requests/{rid}/cancel")
-    return {"client": client_ms, "server": server_ms, "remote": remote, "sent": count}
+        while into["sent"] < count and (deadline is None or time.monotonic() < deadline):
+            measure_dispatch(client, f"{label} {into['sent']}", into)
+    return into
 
 
 def get_under_load(url: str, key: str, rate: float, seconds: float,

@@ -25,22 +25,22 @@ import pydantic
 from robocloud.errors import RoboCloudError
 from robocloud.federation.messages import (
     CloudInfo,
-    Dispatch,
-    Done,
     FleetReply,
     IdleQuery,
     IdleReply,
-    LoanQuery,
-    LoanReply,
-    Release,
-    Reservation,
-    ReserveReply,
     StatusQuery,
     StatusReply,
 )
-from robocloud.federation.overlay import Gathered, HomeDesk, Unreachable, answer, desk_handlers
+from robocloud.federation.overlay import (
+    Gathered,
+    HomeCommands,
+    HomeDesk,
+    Unreachable,
+    answer,
+    desk_handlers,
+)
 from robocloud.fleet.link import LatestStates, RobotLink, StateListener
-from robocloud.fleet.messages import Ack, State
+from robocloud.fleet.messages import State
 
 M = TypeVar("M", bound=pydantic.BaseModel)
 
@@ -113,7 +113,7 @@ class MemoryNetwork:
             overlay.heard(cloud, state)
 
 
-class MemoryOverlay:
+class MemoryOverlay(HomeCommands):
     """One cloud's overlay on a ``MemoryNetwork`` (an ``Overlay``)."""
 
     def __init__(
@@ -156,26 +156,8 @@ class MemoryOverlay:
     def fleets(self) -> list[FleetReply]:
         return [self._ask(cloud, "fleet", None, FleetReply) for cloud in self._everyone()]
 
-    def reserve(self, home: str, reservation: Reservation) -> ReserveReply:
-        return self._ask(home, "reserve", reservation, ReserveReply)
-
-    def confirm(self, home: str, reservation: Reservation) -> ReserveReply:
-        return self._ask(home, "confirm", reservation, ReserveReply)
-
-    def release(self, home: str, release: Release) -> Done:
-        return self._ask(home, "release", release, Done)
-
-    def dispatch(self, home: str, dispatch: Dispatch) -> Ack:
-        try:
-            return self._ask(home, "dispatch", dispatch, Ack)
-        except Unreachable as error:
-            return Ack.refuse(dispatch.robot, dispatch.command.request_id, error.message)
-
-    def cancel(self, home: str, release: Release) -> Done:
-        return self._ask(home, "cancel", release, Done)
-
-    def loans(self, home: str, query: LoanQuery) -> LoanReply:
-        return self._ask(home, "loans", query, LoanReply)
+    def _command(self, home: str, name: str, message: pydantic.BaseModel, model: type[M]) -> M:
+        return self._ask(home, name, message, model)
 
     def status(self, origin: str, query: StatusQuery) -> StatusReply:
         return self._ask(origin, "status", query, StatusReply)

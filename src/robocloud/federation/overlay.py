@@ -160,7 +160,37 @@ def answer(handler: Callable[[str, bytes], pydantic.BaseModel], origin: str, pay
         raise RoboCloudError(f"invalid message: {error.errors()[0]['msg']}") from error
 
 
-class ZenohOverlay:
+class HomeCommands:
+    """The commands to one home cloud, each a ``_command`` by its name: the same
+    in every overlay (``ZenohOverlay``, ``robocloud.federation.memory.MemoryOverlay``),
+    which says how a command travels."""
+
+    def _command(self, home: str, name: str, message: pydantic.BaseModel, model: type[M]) -> M:
+        raise NotImplementedError
+
+    def reserve(self, home: str, reservation: Reservation) -> ReserveReply:
+        return self._command(home, "reserve", reservation, ReserveReply)
+
+    def confirm(self, home: str, reservation: Reservation) -> ReserveReply:
+        return self._command(home, "confirm", reservation, ReserveReply)
+
+    def release(self, home: str, release: Release) -> Done:
+        return self._command(home, "release", release, Done)
+
+    def dispatch(self, home: str, dispatch: Dispatch) -> Ack:
+        try:
+            return self._command(home, "dispatch", dispatch, Ack)
+        except Unreachable as error:
+            return Ack.refuse(dispatch.robot, dispatch.command.request_id, error.message)
+
+    def cancel(self, home: str, release: Release) -> Done:
+        return self._command(home, "cancel", release, Done)
+
+    def loans(self, home: str, query: LoanQuery) -> LoanReply:
+        return self._command(home, "loans", query, LoanReply)
+
+
+class ZenohOverlay(HomeCommands):
     """The overlay on a Zenoh session (the IaaS's router session)."""
 
     def __init__(
@@ -267,27 +297,6 @@ class ZenohOverlay:
         return out
 
     # -- calls to one cloud -----------------------------------------------------
-
-    def reserve(self, home: str, reservation: Reservation) -> ReserveReply:
-        return self._command(home, "reserve", reservation, ReserveReply)
-
-    def confirm(self, home: str, reservation: Reservation) -> ReserveReply:
-        return self._command(home, "confirm", reservation, ReserveReply)
-
-    def release(self, home: str, release: Release) -> Done:
-        return self._command(home, "release", release, Done)
-
-    def dispatch(self, home: str, dispatch: Dispatch) -> Ack:
-        try:
-            return self._command(home, "dispatch", dispatch, Ack)
-        except Unreachable as error:
-            return Ack.refuse(dispatch.robot, dispatch.command.request_id, error.message)
-
-    def cancel(self, home: str, release: Release) -> Done:
-        return self._command(home, "cancel", release, Done)
-
-    def loans(self, home: str, query: LoanQuery) -> LoanReply:
-        return self._command(home, "loans", query, LoanReply)
 
     def status(self, origin: str, query: StatusQuery) -> StatusReply:
         return self._call(origin, keys.question(origin, "status"), "status", query, StatusReply)

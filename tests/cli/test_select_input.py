@@ -22,7 +22,8 @@ import pytest
 
 from robocloud.cli import select_input
 from robocloud.cli.main import main
-from robocloud.cli.select_input import RobotRecord, parse_select_input, read_candidates
+from robocloud.cli.select_input import parse_select_input, read_candidates
+from robocloud.domain.records import RobotRecord
 from robocloud.errors import InvalidInput
 from robocloud.selection.filtering import filter_robots
 from robocloud.selection.pipeline import select

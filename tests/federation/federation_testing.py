@@ -4,16 +4,33 @@ from __future__ import annotations
 
 import socket
 import threading
+import time
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from datetime import UTC, datetime, timedelta
 
 from robocloud.domain import Robot
 from robocloud.federation.memory import MemoryNetwork, MemoryOverlay
+from robocloud.federation.messages import LoanQuery
+from robocloud.federation.overlay import Overlay, Unreachable
 from robocloud.federation.view import FederationView
 from robocloud.fleet import MemoryRobotLink
 from robocloud.iaas.home import Home
 from robocloud.storage import MemoryRequestStore, RequestStore
+
+
+def wait_for_commands(overlay: Overlay, home: str, timeout: float = 5.0) -> None:
+    """Until ``home`` answers ``overlay``'s commands: a cloud's liveliness token can
+    reach another router before the declarations of its command keys do."""
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            overlay.loans(home, LoanQuery())
+            return
+        except Unreachable:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.05)
 
 
 def free_endpoint() -> str:

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 import zenoh
-from federation_testing import free_endpoint
+from federation_testing import free_endpoint, wait_for_commands
 
 from robocloud.domain import Robot
 from robocloud.federation.keys import cloud_token
@@ -62,6 +62,7 @@ def two_clouds(tmp_path: Path) -> Iterator[tuple[ZenohOverlay, Home]]:
     a = ZenohOverlay(a_session, "cloud-a", home_a, timeout=5.0)
     try:
         assert wait_for_liveliness(a_session, cloud_token("cloud-b"), 5.0)
+        wait_for_commands(a, "cloud-b")
         yield a, home_b
     finally:
         a.close()

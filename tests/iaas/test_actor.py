@@ -101,3 +101,4 @@ def test_commands_are_timed_as_acks_here_and_as_overlay_calls_for_other_clouds()
         assert registry.get_sample_value(name, labels) == 1, name
     cancels = registry.get_sample_value("robocloud_overlay_seconds_count", {"operation": "cancel"})
     assert cancels is None  # the stop went to this cloud's robot only
+

@@ -36,20 +36,13 @@ import json
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Annotated, Any, Literal, NoReturn
+from typing import Any, Literal, NoReturn
 
 import msgspec
 from pydantic import TypeAdapter, ValidationError
 
 from robocloud.domain import Robot, RobotLike, Task
-from robocloud.domain.robot import (
-    MAX_AMOUNT,
-    MAX_BATTERY,
-    MAX_COORDINATE,
-    MAX_NAME_LENGTH,
-    MAX_SPEED,
-    MIN_SPEED,
-)
+from robocloud.domain.records import CheckedRobotRecord, RobotRecord
 from robocloud.errors import InvalidInput, describe_validation_errors
 from robocloud.selection.filtering import filter_robots
 
@@ -127,52 +120,6 @@ def _json_type(value: Any) -> str:
 
 
 # --- the columnar reader ---------------------------------------------------------
-
-# ``Robot``'s limits, as msgspec constraints. A bound also refuses NaN and the
-# infinities, as ``allow_inf_nan=False`` does.
-_Name = Annotated[str, msgspec.Meta(min_length=1, max_length=MAX_NAME_LENGTH)]
-# The names' pattern, anchored with \Z: Python's $ also matches before a final
-# newline, pydantic's (Rust) $ does not.
-_CheckedName = Annotated[
-    str, msgspec.Meta(min_length=1, max_length=MAX_NAME_LENGTH, pattern=r"^[^\x00-\x1f\x7f]+\Z")
-]
-_Amount = Annotated[float, msgspec.Meta(ge=0.0, le=MAX_AMOUNT)]
-_Coordinate = Annotated[float, msgspec.Meta(ge=-MAX_COORDINATE, le=MAX_COORDINATE)]
-_Speed = Annotated[float, msgspec.Meta(ge=MIN_SPEED, le=MAX_SPEED)]
-_Battery = Annotated[float, msgspec.Meta(ge=0.0, le=MAX_BATTERY)]
-
-
-class CapabilityRecord(msgspec.Struct, forbid_unknown_fields=True, frozen=True, gc=False):
-    kind: Literal["sensing", "actuating"]
-    time: _Amount
-    cost: _Amount
-
-
-class RobotRecord(msgspec.Struct, forbid_unknown_fields=True, frozen=True, gc=False):
-    """A robot as msgspec decodes it: ``Robot``'s fields and limits, a few
-    hundred bytes, and no names' pattern (see :class:`CheckedRobotRecord`).
-
-    The position is a tuple: msgspec decodes a length-constrained list about
-    three times slower, and the selection only reads it.
-    """
-
-    id: _Name
-    cloud: _Name
-    position: tuple[_Coordinate, _Coordinate]
-    speed: _Speed
-    battery: _Battery
-    status: Literal["idle", "reserved", "busy", "charging", "offline"]
-    travel_cost_per_m: _Amount
-    capabilities: dict[_Name, CapabilityRecord]
-
-
-class CheckedRobotRecord(RobotRecord, frozen=True, gc=False):
-    """:class:`RobotRecord` with the names' pattern, for documents that may hold one."""
-
-    id: _CheckedName
-    cloud: _CheckedName
-    capabilities: dict[_CheckedName, CapabilityRecord]
-
 
 class _Document(msgspec.Struct, forbid_unknown_fields=True):
     robots: list[msgspec.Raw]

@@ -69,6 +69,9 @@ class RobotLike(Protocol):
     def id(self) -> str: ...
 
     @property
+    def cloud(self) -> str: ...
+
+    @property
     def position(self) -> Sequence[float]: ...
 
     @property

@@ -27,9 +27,9 @@ from robocloud.federation.messages import (
     CloudInfo,
     FleetReply,
     IdleQuery,
-    IdleReply,
     StatusQuery,
     StatusReply,
+    decode_idle_reply,
 )
 from robocloud.federation.overlay import (
     Gathered,
@@ -100,7 +100,7 @@ class MemoryNetwork:
             raise Unreachable(f"{receiver} is not reachable on the overlay.")
         payload = message.model_dump_json().encode() if message is not None else b""
         try:
-            return answer(desk_handlers(desk)[name], sender, payload).encode()
+            return answer(desk_handlers(desk)[name], sender, payload)
         except RoboCloudError as error:
             raise Unreachable(f"{receiver} did not answer the {name}: {error.message}.") from error
 
@@ -147,9 +147,11 @@ class MemoryOverlay(HomeCommands):
         gathered = Gathered()
         for cloud in self._everyone():
             try:
-                gathered.replies[cloud] = self._ask(cloud, "idle", query, IdleReply)
+                reply = self._network.call(self.cloud, cloud, "idle", query)
             except Unreachable:
                 gathered.missing.append(cloud)
+                continue
+            gathered.replies[cloud] = decode_idle_reply(reply)
         gathered.elapsed_ms = (time.perf_counter() - started) * 1000
         return gathered
 

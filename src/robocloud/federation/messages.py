@@ -34,11 +34,14 @@ refused before any work; the overlay also refuses payloads over
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Annotated, Any
 
+import msgspec
 from pydantic import BaseModel, ConfigDict, Field
 
 from robocloud.domain import Robot
+from robocloud.domain.records import CheckedName, CheckedRobotRecord, RecordName, RobotRecord
 from robocloud.domain.robot import Name
 from robocloud.fleet.messages import Assign
 
@@ -74,10 +77,50 @@ class IdleQuery(BaseModel):
 
 
 class IdleReply(BaseModel):
+    """A home's idle robots that pass the query's filter (its schema; see ``IdleRobots``)."""
+
     model_config = _WIRE
 
     cloud: Name
-    robots: list[Robot]
+    robots: list[Robot] = Field(max_length=MAX_ITEMS)
+
+
+class IdleRobots(msgspec.Struct, frozen=True):
+    """An ``IdleReply`` as the asker decodes it: its robots as ``RobotRecord``.
+
+    Hundreds of robots come in each reply, for every selection; pydantic took
+    about 3 microseconds a robot to build them, msgspec checks the same
+    limits (``Robot``'s) in a fraction of that. Unknown fields of the reply
+    are ignored, as in every message; a robot's are refused, as ``Robot``
+    refuses them.
+    """
+
+    cloud: RecordName
+    robots: Annotated[Sequence[RobotRecord], msgspec.Meta(max_length=MAX_ITEMS)]
+
+
+class _CheckedIdleRobots(IdleRobots, frozen=True):
+    cloud: CheckedName
+    robots: Annotated[Sequence[CheckedRobotRecord], msgspec.Meta(max_length=MAX_ITEMS)]
+
+
+_IDLE = msgspec.json.Decoder(IdleRobots)
+_CHECKED_IDLE = msgspec.json.Decoder(_CheckedIdleRobots)
+
+
+def decode_idle_reply(payload: bytes) -> IdleRobots:
+    """The reply's robots, or ``ValueError`` saying what is wrong with it.
+
+    The names' rule (printable, one line) is checked only when the reply
+    holds an escape or a DEL byte: without one no string in it can hold a
+    control character (``robocloud.domain.records``). The check took two
+    thirds of the decoding.
+    """
+    decoder = _CHECKED_IDLE if b"\\" in payload or b"\x7f" in payload else _IDLE
+    try:
+        return decoder.decode(payload)
+    except (msgspec.DecodeError, msgspec.ValidationError) as error:
+        raise ValueError(f"an invalid idle reply: {error}") from None
 
 
 class FleetReply(BaseModel):

@@ -38,7 +38,7 @@ from robocloud.federation.messages import (
     Done,
     FleetReply,
     IdleQuery,
-    IdleReply,
+    IdleRobots,
     LoanQuery,
     LoanReply,
     Release,
@@ -46,6 +46,7 @@ from robocloud.federation.messages import (
     ReserveReply,
     StatusQuery,
     StatusReply,
+    decode_idle_reply,
 )
 from robocloud.fleet import keys as robot_keys
 from robocloud.fleet.ingest import StateReader
@@ -69,7 +70,9 @@ class HomeDesk(Protocol):
     """
 
     def info(self) -> CloudInfo: ...
-    def idle_robots(self, query: IdleQuery) -> IdleReply: ...
+    def idle_robots(self, query: IdleQuery) -> bytes:
+        """The ``IdleReply``'s JSON (written by the home: it is on every selection's path)."""
+        ...
     def fleet(self) -> FleetReply: ...
     def status(self, query: StatusQuery) -> StatusReply: ...
     def reserve(self, origin: str, reservation: Reservation) -> ReserveReply: ...
@@ -84,7 +87,7 @@ class HomeDesk(Protocol):
 class Gathered:
     """The answers of a scatter-gather query: by cloud, and who did not answer."""
 
-    replies: dict[str, IdleReply] = field(default_factory=dict)
+    replies: dict[str, IdleRobots] = field(default_factory=dict)
     missing: list[str] = field(default_factory=list)
     elapsed_ms: float = 0.0
 
@@ -131,8 +134,13 @@ class Overlay(Protocol):
     def close(self) -> None: ...
 
 
-def desk_handlers(desk: HomeDesk) -> dict[str, Callable[[str, bytes], pydantic.BaseModel]]:
+Handler = Callable[[str, bytes], pydantic.BaseModel | bytes]
+
+
+def desk_handlers(desk: HomeDesk) -> dict[str, Handler]:
     """How each key name is answered: ``(origin, payload) -> reply`` (origin unused by questions).
+
+    A reply is a message, or its JSON when the desk writes it itself (``idle``).
 
     Shared by the Zenoh and the in-memory overlays, so both parse and answer alike.
     """
@@ -150,12 +158,13 @@ def desk_handlers(desk: HomeDesk) -> dict[str, Callable[[str, bytes], pydantic.B
     }
 
 
-def answer(handler: Callable[[str, bytes], pydantic.BaseModel], origin: str, payload: bytes) -> str:
+def answer(handler: Handler, origin: str, payload: bytes) -> bytes:
     """The reply's JSON, or ``RoboCloudError`` with the sentence for the asker."""
     if len(payload) > MAX_MESSAGE_BYTES:
         raise RoboCloudError(f"the message is {len(payload)} bytes; at most {MAX_MESSAGE_BYTES}.")
     try:
-        return handler(origin, payload).model_dump_json()
+        reply = handler(origin, payload)
+        return reply if isinstance(reply, bytes) else reply.model_dump_json().encode()
     except pydantic.ValidationError as error:
         raise RoboCloudError(f"invalid message: {error.errors()[0]['msg']}") from error
 
@@ -275,9 +284,9 @@ class ZenohOverlay(HomeCommands):
             return gathered  # alone on the overlay: nobody to ask
         for payload in self._scatter("idle", query, timeout):
             try:
-                reply = IdleReply.model_validate_json(payload)
-            except pydantic.ValidationError:
-                logger.warning("ignoring an invalid idle reply")
+                reply = decode_idle_reply(payload)
+            except ValueError as error:
+                logger.warning("ignoring %s", error)
                 continue
             if reply.cloud != self.cloud:
                 gathered.replies[reply.cloud] = reply
@@ -356,18 +365,14 @@ class ZenohOverlay(HomeCommands):
 
     # -- internals ------------------------------------------------------------
 
-    def _handler(
-        self, handler: Callable[[str, bytes], pydantic.BaseModel]
-    ) -> Callable[[zenoh.Query], None]:
+    def _handler(self, handler: Handler) -> Callable[[zenoh.Query], None]:
         def on_query(query: zenoh.Query) -> None:
             # Keep Zenoh's thread free: the answer may send queries itself.
             self._pool.submit(self._answer, query, handler)
 
         return on_query
 
-    def _answer(
-        self, query: zenoh.Query, handler: Callable[[str, bytes], pydantic.BaseModel]
-    ) -> None:
+    def _answer(self, query: zenoh.Query, handler: Handler) -> None:
         with query:
             key = str(query.key_expr)
             # A command's sender is the key's: the router let only that cloud send on it.
@@ -393,6 +398,9 @@ class ZenohOverlay(HomeCommands):
             target=zenoh.QueryTarget.ALL,
             consolidation=zenoh.ConsolidationMode.NONE,
             timeout=self._timeout if timeout is None else timeout,
+            # Not this cloud's own desk: its answer is known, and the query
+            # would wait for it on this process's own threads.
+            allowed_destination=zenoh.Locality.REMOTE,
         )
         return [r.ok.payload.to_bytes() for r in replies if r.ok is not None]
 

@@ -23,7 +23,7 @@ from collections import defaultdict
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 
-from robocloud.domain import Robot, Task
+from robocloud.domain import Robot, RobotLike, Task
 from robocloud.errors import RoboCloudError
 from robocloud.federation.messages import Dispatch, IdleQuery, Release, Reservation
 from robocloud.federation.overlay import Overlay
@@ -45,7 +45,7 @@ RESERVATIONS_TTL = 0.25  # seconds a read of the store's reservations serves sel
 class View:
     """The robots one selection sees, and what the gathering noticed."""
 
-    robots: list[Robot]
+    robots: list[RobotLike]  # other clouds' robots, as their homes sent them
     notes: list[str] = field(default_factory=list)
     gather_ms: float = 0.0
 
@@ -101,7 +101,7 @@ class FederationView:
         ]
 
     def candidates(
-        self, task: Task, excluded: Iterable[str] = (), others: Sequence[Robot] = ()
+        self, task: Task, excluded: Iterable[str] = (), others: Sequence[RobotLike] = ()
     ) -> Candidates:
         """The candidates of a selection among this cloud's robots, then ``others``.
 
@@ -135,6 +135,10 @@ class FederationView:
             recent.update((r, now) for r in ids)
             self._recent = recent
 
+    def others_live(self) -> bool:
+        """Whether a selection asks other clouds (an overlay, and another live cloud on it)."""
+        return self.overlay is not None and len(self.overlay.clouds()) > 1
+
     def remote_robots(self, task: Task, exclude: set[str]) -> View:
         """The idle robots of the other live clouds that answer within the timeout."""
         view = View([])
@@ -150,8 +154,12 @@ class FederationView:
         )
         view.gather_ms = gathered.elapsed_ms
         for reply in gathered.replies.values():
+            # A home answers for its own robots only: one it names as another
+            # cloud's would be reserved and commanded there.
             view.robots += [
-                r for r in reply.robots if r.id not in exclude and r.cloud != self.cloud
+                r
+                for r in reply.robots
+                if r.cloud == reply.cloud and r.cloud != self.cloud and r.id not in exclude
             ]
         if gathered.missing:
             view.notes.append(

@@ -26,7 +26,7 @@ from typing import Any, Protocol, TypeVar
 
 from robocloud.domain import Task, is_final
 from robocloud.errors import Conflict, Unavailable
-from robocloud.federation.view import FederationView
+from robocloud.federation.view import FederationView, View
 from robocloud.fleet.messages import Assign as AssignCommand
 from robocloud.iaas import lifecycle as lc
 from robocloud.iaas.metrics import IaasMetrics
@@ -89,6 +89,9 @@ class RequestActor:
         self.record = record
         self.inbox: asyncio.Queue[tuple[lc.Event | None, Reply | None]] = asyncio.Queue()
         self._ops: set[asyncio.Task[None]] = set()
+        # The other clouds' idle robots, asked for before the effects ahead of
+        # the selection are carried out (``_ask_others_early``).
+        self._early: tuple[lc.Select, asyncio.Task[View]] | None = None
         self.closed = False  # its loop has ended: what is posted now is answered at once
 
     @property
@@ -132,6 +135,8 @@ class RequestActor:
             await self._crash(error)
         finally:
             self.closed = True
+            if self._early is not None:
+                self._early[1].cancel()
             for op in list(self._ops):
                 op.cancel()
             await asyncio.gather(*self._ops, return_exceptions=True)
@@ -145,8 +150,32 @@ class RequestActor:
     async def _handle(self, event: lc.Event) -> None:
         now = lc.Now(self.shell.mono(), self.shell.wall())
         self.life, effects = lc.decide(self.life, event, now)
+        self._ask_others_early(effects)
         for effect in effects:
             await self._carry_out(effect)
+
+    def _ask_others_early(self, effects: Sequence[lc.Effect]) -> None:
+        """Start gathering the other clouds' idle robots for a first selection at once.
+
+        A new request's first effects are the write of its ``selecting`` state,
+        then the selection. The question to the other clouds only reads, and
+        its answer travels while this cloud writes: it is asked first, and the
+        selection takes the answer. Only when other clouds are live; a cloud
+        alone runs as before.
+        """
+        view = self.shell.view
+        for effect in effects:
+            if isinstance(effect, lc.Select) and effect.attempt == 1 and view.others_live():
+                if self._early is not None:
+                    self._early[1].cancel()
+                task = effect.task
+                gathering = asyncio.ensure_future(
+                    self.shell.blocking(view.remote_robots, task, set(effect.exclude))
+                )
+                # Retrieved, so an answer nobody waits for (a cancel came) logs nothing.
+                gathering.add_done_callback(lambda g: g.cancelled() or g.exception())
+                self._early = (effect, gathering)
+                return
 
     async def _crash(self, error: Exception) -> None:
         """Fail the request with the error's sentence; every effect is tried, none may raise."""
@@ -270,7 +299,13 @@ class RequestActor:
             # Requests that collided pick again at different moments.
             await asyncio.sleep(random.uniform(0.0, COLLISION_PAUSE * effect.attempt))
         exclude = set(effect.exclude)
-        gathered = await shell.blocking(shell.view.remote_robots, effect.task, exclude)
+        early, self._early = self._early, None
+        if early is not None and early[0] is effect:
+            gathered = await early[1]
+        else:
+            if early is not None:
+                early[1].cancel()
+            gathered = await shell.blocking(shell.view.remote_robots, effect.task, exclude)
         if gathered.gather_ms > 0:  # other clouds were asked
             shell.metrics.overlay_seconds.labels("gather").observe(gathered.gather_ms / 1000)
         left_out = exclude | set(shell.held())

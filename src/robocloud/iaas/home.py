@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import json
 import logging
 import threading
 import time
@@ -39,7 +40,7 @@ from dataclasses import dataclass
 from datetime import datetime, timedelta
 from typing import Protocol
 
-from robocloud.domain import is_final
+from robocloud.domain import Robot, is_final
 from robocloud.errors import RoboCloudError, Unavailable
 from robocloud.federation.messages import (
     MAX_ITEMS,
@@ -48,7 +49,6 @@ from robocloud.federation.messages import (
     Done,
     FleetReply,
     IdleQuery,
-    IdleReply,
     LoanNotice,
     LoanQuery,
     LoanReply,
@@ -158,6 +158,8 @@ class Home:
         self._away_since: dict[str, float] = {}  # origin -> when it first did not answer
         self._worked_at: dict[str, float] = {}  # robot -> when last seen working for its loan
         self._dispatched: set[tuple[str, str]] = set()  # (robot, request): accepted its dispatch
+        self._robot_json: dict[str, tuple[Robot, bytes]] = {}  # id -> (the Robot, its JSON)
+        self._cloud_json = json.dumps(cloud).encode()
         for loan in store.loans():
             self._remember(loan)
         link.on_state(self._on_state)
@@ -185,22 +187,42 @@ class Home:
             cloud=self.cloud, robots=len(robots), idle=idle, offline=offline, api=self.api
         )
 
-    def idle_robots(self, query: IdleQuery) -> IdleReply:
+    def idle_robots(self, query: IdleQuery) -> bytes:
+        """The ``IdleReply``'s JSON: the idle robots, not held, that pass the query's filter.
+
+        Asked for every selection of every other cloud, with hundreds of
+        robots in each reply: each robot's JSON is written once and kept
+        while the link gives the same ``Robot`` (it makes a new one only when
+        a state changes what the robot says), so a reply is mostly a join.
+        """
         # The scatter-gather reaches this cloud's own desk too: its robots are
         # already in the view, so they need not travel.
         if query.origin == self.cloud or not self._trusts(query.origin):
-            return IdleReply(cloud=self.cloud, robots=[])
+            return self._idle_reply([])
         held = self.store.reservations()
         wanted = set(query.capabilities)
+        everyone = self.link.robots()
         robots = [
             r
-            for r in self.link.robots()
+            for r in everyone
             if r.status == "idle"
             and r.id not in held
             and r.battery >= query.min_battery
-            and (not wanted or wanted & set(r.capabilities))
+            and (not wanted or not wanted.isdisjoint(r.capabilities))
         ]
-        return IdleReply(cloud=self.cloud, robots=robots[:MAX_ITEMS])
+        if len(self._robot_json) > len(everyone) + 1000:  # forgotten robots' JSON goes
+            self._robot_json = {}
+        return self._idle_reply(robots[:MAX_ITEMS])
+
+    def _idle_reply(self, robots: list[Robot]) -> bytes:
+        cache = self._robot_json
+        parts = []
+        for robot in robots:
+            kept = cache.get(robot.id)
+            if kept is None or kept[0] is not robot:
+                kept = cache[robot.id] = (robot, robot.model_dump_json().encode())
+            parts.append(kept[1])
+        return b'{"cloud":%s,"robots":[%s]}' % (self._cloud_json, b",".join(parts))
 
     def fleet(self) -> FleetReply:
         held = self.store.reservations()

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from robocloud.domain import Capability, Robot, Task
+from robocloud.domain import Capability, RobotLike, Task
 from robocloud.domain.robot import ROBOT_STATUSES
 from robocloud.selection.filtering import filter_robots
 from robocloud.selection.problem import (
@@ -196,11 +196,11 @@ def candidates(
     columns: FleetColumns,
     task: Task,
     excluded: Iterable[str] = (),
-    others: Sequence[Robot] = (),
+    others: Sequence[RobotLike] = (),
 ) -> Candidates:
     """The filtered candidates among ``columns`` (less ``excluded``), then among ``others``.
 
-    ``others`` (robots of other clouds) come as Robots: they are few. The
+    ``others`` (robots of other clouds, as their homes sent them) are few. The
     problem equals ``CoalitionProblem.build(filter_robots(robots, task), task)``
     where ``robots`` lists the fleet in id order, its excluded robots as not
     idle, then ``others``.

@@ -132,7 +132,7 @@ def clouds(
             monotonic=time.mono,
         )
         overlay = network.join(name, home, link)
-        view = FederationView(name, store, link, overlay)
+        view = FederationView(name, store, link, overlay, clock=time.mono)
         origin = Origin()
         home.overlay, home.origin, home.lenders = overlay, origin, view.lenders
         out[name] = Cloud(name, store, link, home, overlay, view, origin)

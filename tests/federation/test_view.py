@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
-from federation_testing import clouds
+from federation_testing import FakeTime, clouds
 
 from robocloud.domain import Task
+from robocloud.federation.memory import MemoryNetwork
+from robocloud.federation.view import GATHER_TTL
 from robocloud.fleet.messages import Assign
 
 TASK = Task.model_validate(
@@ -24,11 +26,13 @@ def go(request_id: str) -> Assign:
 
 
 def test_remote_robots_leave_out_a_cloud_that_does_not_answer() -> None:
-    network, c = clouds(("cloud-a", "cloud-b", "cloud-c"), robots=2)
+    time = FakeTime()
+    network, c = clouds(("cloud-a", "cloud-b", "cloud-c"), robots=2, time=time)
     view = c["cloud-a"].view
     seen = view.remote_robots(TASK, exclude={"b-1"})
     assert sorted(r.id for r in seen.robots) == ["b-0", "c-0", "c-1"]
     assert seen.notes == []
+    time.advance(GATHER_TTL)  # each question below is asked again
     network.mute("cloud-c")
     seen = view.remote_robots(TASK, exclude=set())
     assert sorted(r.id for r in seen.robots) == ["b-0", "b-1"]
@@ -36,6 +40,7 @@ def test_remote_robots_leave_out_a_cloud_that_does_not_answer() -> None:
     network.cut("cloud-c")  # gone: no longer expected
     assert view.remote_robots(TASK, exclude=set()).notes == []
     network.mend("cloud-c")
+    time.advance(GATHER_TTL)
     # A lent robot is no longer idle at its home.
     assert c["cloud-c"].view.reserve("req-c", [("b-0", "cloud-b")]) == []
     assert sorted(r.id for r in view.remote_robots(TASK, exclude=set()).robots) == [
@@ -112,3 +117,54 @@ def test_a_robot_reserved_here_is_reserved_at_once_for_selections() -> None:
     # The read above is still served (RESERVATIONS_TTL); the reservation shows anyway.
     assert a.view.reserve(rid.id, [("a-0", "cloud-a")]) == []
     assert {r.id: r.status for r in a.view.local_robots()} == {"a-0": "reserved", "a-1": "idle"}
+
+
+def idle_questions(network: MemoryNetwork) -> int:
+    return sum(name == "idle" for _, _, name in network.calls)
+
+
+def test_an_answer_serves_selections_of_the_same_filter_for_a_quarter_second() -> None:
+    time = FakeTime()
+    network, c = clouds(("cloud-a", "cloud-b"), robots=2, time=time)
+    view = c["cloud-a"].view
+    assert len(view.remote_robots(TASK, exclude=set()).robots) == 2
+    assert view.remote_robots(TASK, exclude={"b-0"}).gather_ms == 0.0  # not asked
+    assert [r.id for r in view.remote_robots(TASK, exclude={"b-0"}).robots] == ["b-1"]
+    assert idle_questions(network) == 1
+    other = TASK.model_copy(update={"min_battery": 80.0})  # another filter: asked
+    view.remote_robots(other, exclude=set())
+    assert idle_questions(network) == 2
+    time.advance(GATHER_TTL)
+    view.remote_robots(TASK, exclude=set())
+    assert idle_questions(network) == 3
+    # An answer with a cloud missing is not kept.
+    c3 = clouds(("cloud-a", "cloud-b", "cloud-c"), robots=1, time=time)
+    network3, view3 = c3[0], c3[1]["cloud-a"].view
+    network3.mute("cloud-c")
+    assert view3.remote_robots(TASK, exclude=set()).notes
+    network3.mend("cloud-c")
+    assert view3.remote_robots(TASK, exclude=set()).notes == []
+    assert idle_questions(network3) == 4  # twice to each of two clouds
+
+
+def test_a_robot_lent_meanwhile_is_refused_and_the_next_selection_asks_again() -> None:
+    time = FakeTime()
+    network, c = clouds(("cloud-a", "cloud-b", "cloud-c"), robots=2, time=time)
+    a, cc = c["cloud-a"], c["cloud-c"]
+    assert "b-0" in [r.id for r in a.view.remote_robots(TASK, exclude=set()).robots]
+    assert cc.view.reserve("req-c", [("b-0", "cloud-b")]) == []  # lent to cloud-c meanwhile
+    kept = [r.id for r in a.view.remote_robots(TASK, exclude=set()).robots]
+    assert "b-0" in kept  # the kept answer still offers it ...
+    rid, _ = a.store.create_request("app", {})
+    assert a.view.reserve(rid.id, [("b-0", "cloud-b")]) == ["b-0"]  # ... its home refuses it
+    fresh = [r.id for r in a.view.remote_robots(TASK, exclude=set()).robots]
+    assert "b-0" not in fresh  # asked again at once, not a quarter second later
+    assert idle_questions(network) == 4  # two clouds, twice
+
+
+def test_robots_this_cloud_holds_are_no_candidates_even_in_a_kept_answer() -> None:
+    _, c = clouds(("cloud-a", "cloud-b"), robots=2)
+    a = c["cloud-a"]
+    others = a.view.remote_robots(TASK, exclude=set()).robots
+    found = a.view.candidates(TASK, {"b-0", "a-1"}, others)
+    assert found.problem.ids == ("a-0", "b-1")

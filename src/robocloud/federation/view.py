@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 from robocloud.domain import Robot, RobotLike, Task
 from robocloud.errors import RoboCloudError
 from robocloud.federation.messages import Dispatch, IdleQuery, Release, Reservation
-from robocloud.federation.overlay import Overlay
+from robocloud.federation.overlay import Gathered, Overlay
 from robocloud.fleet.link import RobotLink, StateListener
 from robocloud.fleet.messages import Ack, Assign
 from robocloud.selection.columns import Candidates, candidates
@@ -39,6 +39,8 @@ logger = logging.getLogger(__name__)
 # home grants at most its own maximum.
 LEASE_SECONDS = 15.0
 RESERVATIONS_TTL = 0.25  # seconds a read of the store's reservations serves selections
+GATHER_TTL = 0.25  # seconds the other clouds' answer serves selections of the same filter
+_GATHERED_MAX = 64  # filters whose answers are kept
 
 
 @dataclass
@@ -58,12 +60,18 @@ class FederationView:
         link: RobotLink,
         overlay: Overlay | None = None,
         gather_timeout: float = 0.5,
+        gather_ttl: float = GATHER_TTL,
+        clock: Callable[[], float] = time.monotonic,
     ) -> None:
         self.cloud = cloud
         self.store = store
         self.link = link
         self.overlay = overlay
         self.gather_timeout = gather_timeout
+        self.gather_ttl = gather_ttl
+        self._clock = clock
+        # (min_battery, capabilities) -> (when asked, the answers): see remote_robots
+        self._gathered: dict[tuple[float, tuple[str, ...]], tuple[float, Gathered]] = {}
         self._reserved: tuple[float, set[str]] | None = None  # (when read, robot ids)
         self._recent: dict[str, float] = {}  # robots reserved here lately -> when
         self._lenders: set[str] = set()
@@ -108,7 +116,9 @@ class FederationView:
         As ``filter_robots`` over ``local_robots(excluded)`` followed by
         ``others``, read from the link's columns: no Robot is made or copied.
         """
-        reserved = self._reservations() | set(excluded)
+        excluded = set(excluded)
+        reserved = self._reservations() | excluded
+        others = [r for r in others if r.id not in excluded] if excluded else others
         return candidates(self.link.columns(), task, reserved, others)
 
     def _reservations(self) -> set[str]:
@@ -140,19 +150,38 @@ class FederationView:
         return self.overlay is not None and len(self.overlay.clouds()) > 1
 
     def remote_robots(self, task: Task, exclude: set[str]) -> View:
-        """The idle robots of the other live clouds that answer within the timeout."""
+        """The idle robots of the other live clouds that answer within the timeout.
+
+        The other clouds' answer to one filter (battery, capabilities) serves
+        the selections that need it for ``gather_ttl`` seconds, as a read of
+        the store's reservations does (``local_robots``): under load a home is
+        asked a few times a second, not once per request, and a selection
+        does not wait a round trip. Meanwhile a robot its home lent to
+        another cloud may still be offered: its reservation is then refused
+        (``reserve`` returns it as taken, and forgets every kept answer) and
+        the selection runs again. The robots this cloud holds are left out
+        by the caller (``candidates``). An answer with a cloud missing is not
+        kept, nor is one from before a cloud joined or left.
+        """
         view = View([])
         if self.overlay is None:
             return view
-        gathered = self.overlay.gather_idle(
-            IdleQuery(
-                origin=self.cloud,
-                min_battery=task.min_battery,
-                capabilities=list(task.required),
-            ),
-            self.gather_timeout,
+        query = IdleQuery(
+            origin=self.cloud, min_battery=task.min_battery, capabilities=list(task.required)
         )
-        view.gather_ms = gathered.elapsed_ms
+        gathered = self._kept(query)
+        if gathered is None:
+            asked = self._clock()
+            gathered = self.overlay.gather_idle(query, self.gather_timeout)
+            view.gather_ms = gathered.elapsed_ms
+            if not gathered.missing:
+                with self._lock:
+                    if len(self._gathered) >= _GATHERED_MAX:
+                        self._gathered.clear()
+                    self._gathered[(query.min_battery, tuple(query.capabilities))] = (
+                        asked,
+                        gathered,
+                    )
         for reply in gathered.replies.values():
             # A home answers for its own robots only: one it names as another
             # cloud's would be reserved and commanded there.
@@ -168,6 +197,21 @@ class FederationView:
                 f"{'its' if len(gathered.missing) == 1 else 'their'} robots were left out"
             )
         return view
+
+    def _kept(self, query: IdleQuery) -> Gathered | None:
+        """The other clouds' answer to ``query`` if one is fresh, from every live cloud."""
+        assert self.overlay is not None
+        with self._lock:
+            kept = self._gathered.get((query.min_battery, tuple(query.capabilities)))
+        if kept is None or self._clock() - kept[0] >= self.gather_ttl:
+            return None
+        others = set(self.overlay.clouds()) - {self.cloud}
+        return kept[1] if set(kept[1].replies) == others else None
+
+    def forget_gathered(self) -> None:
+        """Ask the other clouds again at the next selection."""
+        with self._lock:
+            self._gathered.clear()
 
     # -- reservations at each robot's home --------------------------------------
 
@@ -192,6 +236,8 @@ class FederationView:
                     taken = (reply.taken or ids) if reply.error is not None else reply.taken
                 except RoboCloudError:
                     taken = ids
+                if taken:
+                    self.forget_gathered()  # an answer kept may still offer them
             if taken:
                 break
             done.append(cloud)

@@ -43,7 +43,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from robocloud.domain import Robot
 from robocloud.domain.records import CheckedName, CheckedRobotRecord, RecordName, RobotRecord
 from robocloud.domain.robot import Name
-from robocloud.fleet.messages import Assign
+from robocloud.fleet.messages import Ack, Assign
 
 _WIRE = ConfigDict(extra="ignore", frozen=True)
 
@@ -130,6 +130,13 @@ class FleetReply(BaseModel):
     robots: list[dict[str, Any]]
 
 
+class Dispatch(BaseModel):
+    model_config = _WIRE
+
+    robot: Name
+    command: Assign
+
+
 class Reservation(BaseModel):
     """Lend robots of the home cloud to a request of the sender; a lease until confirmed.
 
@@ -142,6 +149,9 @@ class Reservation(BaseModel):
     request_id: Name
     robots: list[Name] = Field(min_length=1, max_length=MAX_ITEMS)
     lease_seconds: float | None = Field(None, gt=0, le=86_400)
+    # A reserve only: the commands for these robots, forwarded by the home
+    # once all of them are lent (one round trip fewer than a dispatch each).
+    dispatch: list[Dispatch] = Field(default_factory=list, max_length=MAX_ITEMS)
 
 
 class ReserveReply(BaseModel):
@@ -149,6 +159,9 @@ class ReserveReply(BaseModel):
 
     taken: list[Name] = Field(default_factory=list, description="robots another request holds")
     error: str | None = None
+    acks: list[Ack] = Field(
+        default_factory=list, max_length=MAX_ITEMS, description="the robots' acks to ``dispatch``"
+    )
 
 
 class Release(BaseModel):
@@ -164,13 +177,6 @@ class Done(BaseModel):
 
     ok: bool = True
     error: str | None = None
-
-
-class Dispatch(BaseModel):
-    model_config = _WIRE
-
-    robot: Name
-    command: Assign
 
 
 class StatusQuery(BaseModel):

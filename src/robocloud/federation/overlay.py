@@ -18,6 +18,7 @@ threads, because answering may itself send queries (a dispatch asks the robot).
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import threading
 import time
@@ -215,6 +216,7 @@ class ZenohOverlay(HomeCommands):
         self._session = session
         self._timeout = timeout
         self._pool = ThreadPoolExecutor(8, thread_name_prefix=f"overlay-{cloud}")
+        self._subscribing = ThreadPoolExecutor(1, thread_name_prefix=f"overlay-{cloud}-follow")
         self._watched = LatestStates("*", offline_after, clock)
         self._subscribers: dict[str, Any] = {}
         # Robots behind a fleet gateway send no state on their own key: while
@@ -313,6 +315,29 @@ class ZenohOverlay(HomeCommands):
     # -- robots of other clouds ---------------------------------------------------
 
     def watch(self, cloud: str, robot_id: str) -> None:
+        """Follow a remote robot's state, from a moment after this call.
+
+        Declaring a subscriber takes most of a millisecond, and the service
+        calls this on its event loop as it dispatches: the subscriptions are
+        declared and undeclared on a thread of their own, in the order asked.
+        """
+        self._later(self._watch, cloud, robot_id)
+
+    def unwatch(self, cloud: str, robot_id: str) -> None:
+        self._later(self._unwatch, cloud, robot_id)
+
+    def _later(self, work: Callable[[str, str], None], cloud: str, robot_id: str) -> None:
+        with contextlib.suppress(RuntimeError):  # closed: nothing is followed any more
+            self._subscribing.submit(self._logged, work, cloud, robot_id)
+
+    @staticmethod
+    def _logged(work: Callable[[str, str], None], cloud: str, robot_id: str) -> None:
+        try:
+            work(cloud, robot_id)
+        except Exception:
+            logger.exception("following %s of %s failed", robot_id, cloud)
+
+    def _watch(self, cloud: str, robot_id: str) -> None:
         key = robot_keys.state_key(cloud, robot_id)
         with self._lock:
             if key in self._subscribers:
@@ -325,7 +350,7 @@ class ZenohOverlay(HomeCommands):
                     lambda sample: self._on_batch(cloud, sample),
                 )
 
-    def unwatch(self, cloud: str, robot_id: str) -> None:
+    def _unwatch(self, cloud: str, robot_id: str) -> None:
         key = robot_keys.state_key(cloud, robot_id)
         batches = None
         with self._lock:
@@ -351,6 +376,7 @@ class ZenohOverlay(HomeCommands):
         return self._watched.add_listener(listener)
 
     def close(self) -> None:
+        self._subscribing.shutdown(wait=True, cancel_futures=True)
         self._token.undeclare()  # type: ignore[no-untyped-call]
         self._presence.undeclare()  # type: ignore[no-untyped-call]
         for queryable in self._queryables:

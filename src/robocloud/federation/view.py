@@ -20,7 +20,7 @@ import logging
 import threading
 import time
 from collections import defaultdict
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 from robocloud.domain import Robot, RobotLike, Task
@@ -41,6 +41,7 @@ LEASE_SECONDS = 15.0
 RESERVATIONS_TTL = 0.25  # seconds a read of the store's reservations serves selections
 GATHER_TTL = 0.25  # seconds the other clouds' answer serves selections of the same filter
 _GATHERED_MAX = 64  # filters whose answers are kept
+MAX_KEPT_ACKS = 10_000  # acks of robots commanded with their reservation, until assigned
 
 
 @dataclass
@@ -75,6 +76,7 @@ class FederationView:
         self._reserved: tuple[float, set[str]] | None = None  # (when read, robot ids)
         self._recent: dict[str, float] = {}  # robots reserved here lately -> when
         self._lenders: set[str] = set()
+        self._acks: dict[tuple[str, str], Ack] = {}  # (request, robot) -> its home's ack
         self._lock = threading.Lock()
 
     def lenders(self) -> list[str]:
@@ -215,29 +217,36 @@ class FederationView:
 
     # -- reservations at each robot's home --------------------------------------
 
-    def reserve(self, request_id: str, robots: Sequence[tuple[str, str]]) -> list[str]:
-        """Reserve (robot, cloud) pairs, all or nothing: [] or the robots taken meanwhile."""
+    def reserve(
+        self,
+        request_id: str,
+        robots: Sequence[tuple[str, str]],
+        commands: Mapping[str, Assign] | None = None,
+    ) -> list[str]:
+        """Reserve (robot, cloud) pairs, all or nothing: [] or the robots taken meanwhile.
+
+        This cloud's robots are reserved first, then each other home's. With
+        ``commands`` (robot -> its command), the last home also gets its
+        robots' commands with their reservation and forwards them once it has
+        lent them all: its robots are then commanded a round trip earlier,
+        and ``assign`` answers with the acks it sent back (``take_ack``). Only
+        the last: a home reserved before it may still be rolled back, and a
+        robot must not work for a reservation that was undone.
+        """
         by_cloud = _by_cloud(robots)
+        order = sorted(by_cloud, key=lambda cloud: cloud != self.cloud)  # this cloud first
         done: list[str] = []
         taken: list[str] = []
-        for cloud, ids in by_cloud.items():
+        for n, cloud in enumerate(order):
+            ids = by_cloud[cloud]
             if cloud == self.cloud:
                 taken = self.store.reserve(request_id, ids)
                 if not taken:
                     self._reserved_now(ids)
             else:
-                assert self.overlay is not None, "a remote robot without an overlay"
-                self._borrowing_from(cloud)
-                try:
-                    reply = self.overlay.reserve(
-                        cloud,
-                        Reservation(request_id=request_id, robots=ids, lease_seconds=LEASE_SECONDS),
-                    )
-                    taken = (reply.taken or ids) if reply.error is not None else reply.taken
-                except RoboCloudError:
-                    taken = ids
-                if taken:
-                    self.forget_gathered()  # an answer kept may still offer them
+                last = n == len(order) - 1
+                sent = [r for r in ids if r in commands] if commands and last else []
+                taken = self._reserve_at(cloud, request_id, ids, sent, commands or {})
             if taken:
                 break
             done.append(cloud)
@@ -245,6 +254,49 @@ class FederationView:
             for cloud in done:
                 self._release(cloud, request_id, by_cloud[cloud], "reservation rolled back")
         return taken
+
+    def _reserve_at(
+        self,
+        cloud: str,
+        request_id: str,
+        ids: list[str],
+        sent: list[str],
+        commands: Mapping[str, Assign],
+    ) -> list[str]:
+        """Reserve robots at their home ``cloud`` (with the commands of ``sent``); the taken."""
+        assert self.overlay is not None, "a remote robot without an overlay"
+        self._borrowing_from(cloud)
+        reservation = Reservation(
+            request_id=request_id,
+            robots=ids,
+            lease_seconds=LEASE_SECONDS,
+            dispatch=[Dispatch(robot=r, command=commands[r]) for r in sent],
+        )
+        try:
+            reply = self.overlay.reserve(cloud, reservation)
+        except RoboCloudError:
+            if sent:  # the home may have lent and commanded them before the reply was lost
+                self._stop_at(cloud, request_id, sent)
+            self.forget_gathered()
+            return ids
+        taken = (reply.taken or ids) if reply.error is not None else reply.taken
+        if taken:
+            self.forget_gathered()  # an answer kept may still offer them
+            return taken
+        acks = {ack.robot: ack for ack in reply.acks}
+        with self._lock:
+            if len(self._acks) > MAX_KEPT_ACKS:  # acks no assign took (their request ended)
+                self._acks.clear()
+            for robot in sent:
+                self._acks[(request_id, robot)] = acks.get(robot) or Ack.refuse(
+                    robot, request_id, f"{cloud} sent no acknowledgement for {robot}."
+                )
+        return []
+
+    def take_ack(self, request_id: str, robot: str) -> Ack | None:
+        """The ack of a robot commanded with its reservation, once (None: not commanded yet)."""
+        with self._lock:
+            return self._acks.pop((request_id, robot), None)
 
     def confirm(self, request_id: str, robots: Sequence[tuple[str, str]]) -> list[str]:
         """Turn the remote leases firm once dispatched; the robots that could not be."""
@@ -275,6 +327,14 @@ class FederationView:
             return
         if self.overlay is None:
             return
+        commanded = [r for r in ids if self.take_ack(request_id, r) is not None]
+        if commanded:
+            # Commanded with their reservation, then given back before any assign
+            # (the request ended meanwhile): robots are always told.
+            self._stop_at(cloud, request_id, commanded)
+            ids = [r for r in ids if r not in commanded]
+            if not ids:
+                return
         try:
             done = self.overlay.release(
                 cloud, Release(request_id=request_id, robots=ids, why=(why or None) and why[:500])
@@ -291,6 +351,11 @@ class FederationView:
     def assign(self, robot: str, cloud: str, command: Assign) -> Ack:
         if cloud == self.cloud:
             return self.link.assign(robot, command)
+        ack = self.take_ack(command.request_id, robot)
+        if ack is not None:  # commanded with its reservation
+            if ack.ok and self.overlay is not None:
+                self.overlay.watch(cloud, robot)
+            return ack
         if self.overlay is None:
             return Ack.refuse(robot, command.request_id, f"{cloud} is not reachable.")
         ack = self.overlay.dispatch(cloud, Dispatch(robot=robot, command=command))
@@ -298,18 +363,23 @@ class FederationView:
             self.overlay.watch(cloud, robot)
         return ack
 
+    def _stop_at(self, cloud: str, request_id: str, robots: list[str]) -> None:
+        """Stop robots at their home and end their loans (a cancel), logging a failure."""
+        assert self.overlay is not None
+        stop = Release(request_id=request_id, robots=robots, why="canceled")
+        try:
+            self.overlay.cancel(cloud, stop)
+        except RoboCloudError as error:
+            logger.warning("could not stop %s at %s: %s", robots, cloud, error)
+
     def cancel(self, robot: str, cloud: str, request_id: str) -> None:
         if cloud == self.cloud:
             self.link.cancel(robot, request_id)
             return
         if self.overlay is None:
             return
-        try:
-            self.overlay.cancel(
-                cloud, Release(request_id=request_id, robots=[robot], why="canceled")
-            )
-        except RoboCloudError as error:
-            logger.warning("could not cancel %s at %s: %s", robot, cloud, error)
+        self.take_ack(request_id, robot)  # a stop after all: no assign takes it now
+        self._stop_at(cloud, request_id, [robot])
         self.overlay.unwatch(cloud, robot)
 
     def watch(self, robot: str, cloud: str) -> None:

@@ -27,6 +27,7 @@ from typing import Any, Protocol, TypeVar
 from robocloud.domain import Task, is_final
 from robocloud.errors import Conflict, Unavailable
 from robocloud.federation.view import FederationView, View
+from robocloud.fleet.messages import Ack
 from robocloud.fleet.messages import Assign as AssignCommand
 from robocloud.iaas import lifecycle as lc
 from robocloud.iaas.metrics import IaasMetrics
@@ -217,7 +218,8 @@ class RequestActor:
             case lc.Select():
                 self._operate(lambda: self._select(effect), "selection")
             case lc.Reserve(robots):
-                self._operate(lambda: self._reserve(robots), "reservation")
+                commands = self._commands_ahead()
+                self._operate(lambda: self._reserve(robots, commands), "reservation")
             case lc.Assign(members, task):
                 self._operate(lambda: self._assign(members, task), "dispatch")
             case lc.StopRobots(robots):
@@ -322,10 +324,28 @@ class RequestActor:
         shell.claim(self.request_id, result.chosen.robots)
         return lc.Selected(chosen, selection, None, notes, result.complete)
 
-    async def _reserve(self, robots: lc.Pairs) -> lc.Event:
+    def _commands_ahead(self) -> dict[str, AssignCommand]:
+        """The commands of the robots being reserved at other clouds, sent with the reservation.
+
+        A home forwards them as soon as it has lent its robots, a round trip
+        before the ``Assign`` that follows ``Reserved`` would; the acks come
+        back with the reservation and ``Assign`` takes them
+        (``FederationView.reserve``). The life cycle is the same: a robot
+        commanded so and then given back is stopped.
+        """
+        attempt, here = self.life.attempt, self.shell.view.cloud
+        if attempt is None or self.life.final:
+            return {}
+        return {
+            m.robot: command_for(self.request_id, m, attempt.task)
+            for m in attempt.chosen
+            if m.cloud != here
+        }
+
+    async def _reserve(self, robots: lc.Pairs, commands: dict[str, AssignCommand]) -> lc.Event:
         try:
             taken = await self.shell.blocking(
-                self.shell.view.reserve, self.request_id, list(robots)
+                self.shell.view.reserve, self.request_id, list(robots), commands
             )
         except Conflict:
             return lc.Reserved(tuple(r for r, _ in robots))  # the request is over
@@ -333,19 +353,16 @@ class RequestActor:
 
     async def _assign(self, members: Sequence[lc.Member], task: Task) -> lc.Event:
         view = self.shell.view
-        acks = await asyncio.gather(
-            *(
-                self._timed(
-                    "assign",
-                    m.cloud,
-                    view.assign,
-                    m.robot,
-                    m.cloud,
-                    command_for(self.request_id, m, task),
-                )
-                for m in members
-            )
-        )
+
+        async def ack_of(m: lc.Member) -> Ack:
+            # A robot commanded with its reservation: its home's ack is here already.
+            ack = view.take_ack(self.request_id, m.robot) if m.cloud != view.cloud else None
+            if ack is not None:
+                return ack
+            command = command_for(self.request_id, m, task)
+            return await self._timed("assign", m.cloud, view.assign, m.robot, m.cloud, command)
+
+        acks = await asyncio.gather(*(ack_of(m) for m in members))
         return lc.Acked(
             {
                 m.robot: ack.error or "no reason given"

@@ -36,6 +36,7 @@ import threading
 import time
 from collections import defaultdict
 from collections.abc import Callable, Iterable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from datetime import datetime, timedelta
 from typing import Protocol
@@ -115,6 +116,20 @@ class _Lent:
     firm: bool = False
 
 
+def _stray_commands(reservation: Reservation) -> str | None:
+    """Why a reservation's commands do not fit it (each for one of its robots, for its request)."""
+    robots = set(reservation.robots)
+    for dispatch in reservation.dispatch:
+        if dispatch.robot not in robots or dispatch.command.request_id != reservation.request_id:
+            return (
+                f"the command for {dispatch.robot} is not for a robot and request of "
+                "this reservation."
+            )
+    if len({d.robot for d in reservation.dispatch}) != len(reservation.dispatch):
+        return "a reservation carries at most one command per robot."
+    return None
+
+
 def _working(state: State | None, request_id: str) -> bool:
     return (
         state is not None
@@ -159,6 +174,8 @@ class Home:
         self._worked_at: dict[str, float] = {}  # robot -> when last seen working for its loan
         self._dispatched: set[tuple[str, str]] = set()  # (robot, request): accepted its dispatch
         self._robot_json: dict[str, tuple[Robot, bytes]] = {}  # id -> (the Robot, its JSON)
+        # Commands that came with a reservation, sent to their robots at once.
+        self._dispatcher = ThreadPoolExecutor(8, thread_name_prefix=f"home-{cloud}")
         self._cloud_json = json.dumps(cloud).encode()
         for loan in store.loans():
             self._remember(loan)
@@ -263,14 +280,27 @@ class Home:
     # -- commands (origin: the sender named by the key) -----------------------------
 
     def reserve(self, origin: str, reservation: Reservation) -> ReserveReply:
+        """Lend the robots, all or none; then forward the reservation's commands, if any.
+
+        The commands (``dispatch``) go to the robots only once every robot is
+        lent, each as ``dispatch`` would send it; the reply carries their acks.
+        """
         refusal = self._check(origin, "reserve", reservation.robots)
+        if refusal is None:
+            refusal = _stray_commands(reservation)
         if refusal:
             return ReserveReply(taken=list(reservation.robots), error=refusal)
         lease = min(reservation.lease_seconds or self.lease_max, self.lease_max)
         taken = self.store.lend(origin, reservation.request_id, reservation.robots, lease)
-        if not taken:
-            self._lent_now(origin, reservation.request_id, reservation.robots, lease)
-        return ReserveReply(taken=taken)
+        if taken:
+            return ReserveReply(taken=taken)
+        self._lent_now(origin, reservation.request_id, reservation.robots, lease)
+        commands = reservation.dispatch
+        if len(commands) > 1:  # the robots answer at once, not one after the other
+            acks = list(self._dispatcher.map(lambda d: self.dispatch(origin, d), commands))
+        else:
+            acks = [self.dispatch(origin, d) for d in commands]
+        return ReserveReply(acks=acks)
 
     def confirm(self, origin: str, reservation: Reservation) -> ReserveReply:
         refusal = self._check(origin, "confirm", reservation.robots)

@@ -168,3 +168,32 @@ def test_robots_this_cloud_holds_are_no_candidates_even_in_a_kept_answer() -> No
     others = a.view.remote_robots(TASK, exclude=set()).robots
     found = a.view.candidates(TASK, {"b-0", "a-1"}, others)
     assert found.problem.ids == ("a-0", "b-1")
+
+
+def test_a_robot_on_its_way_back_home_is_not_offered_from_a_kept_answer() -> None:
+    import threading
+
+    _, c = clouds(("cloud-a", "cloud-b"), robots=2)
+    a, b = c["cloud-a"], c["cloud-b"]
+    assert sorted(r.id for r in a.view.remote_robots(TASK, exclude=set()).robots) == ["b-0", "b-1"]
+    rid, _ = a.store.create_request("app", {})
+    assert a.view.reserve(rid.id, [("b-0", "cloud-b")]) == []
+    # The home is slow to take b-0 back: while the cancel travels, a selection
+    # here (its request is over, so b-0 is no longer held) must not get b-0
+    # from the answer kept from before it was lent.
+    arrived, go_on = threading.Event(), threading.Event()
+    cancel = b.home.cancel
+
+    def slow_cancel(origin: str, release: object) -> object:
+        arrived.set()
+        go_on.wait(5)
+        return cancel(origin, release)  # type: ignore[arg-type]
+
+    b.home.cancel = slow_cancel  # type: ignore[method-assign]
+    stopping = threading.Thread(target=a.view.cancel, args=("b-0", "cloud-b", rid.id))
+    stopping.start()
+    assert arrived.wait(5)
+    assert [r.id for r in a.view.remote_robots(TASK, exclude=set()).robots] == ["b-1"]
+    go_on.set()
+    stopping.join(5)
+    assert sorted(r.id for r in a.view.remote_robots(TASK, exclude=set()).robots) == ["b-0", "b-1"]

@@ -16,11 +16,12 @@ ended meanwhile (``robocloud.iaas.home.Home.reconcile``).
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import threading
 import time
 from collections import defaultdict
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 
 from robocloud.domain import Robot, RobotLike, Task
@@ -77,6 +78,7 @@ class FederationView:
         self._recent: dict[str, float] = {}  # robots reserved here lately -> when
         self._lenders: set[str] = set()
         self._acks: dict[tuple[str, str], Ack] = {}  # (request, robot) -> its home's ack
+        self._returning: dict[str, int] = {}  # robots being given back to their homes now
         self._lock = threading.Lock()
 
     def lenders(self) -> list[str]:
@@ -162,35 +164,50 @@ class FederationView:
         another cloud may still be offered: its reservation is then refused
         (``reserve`` returns it as taken, and forgets every kept answer) and
         the selection runs again. The robots this cloud holds are left out
-        by the caller (``candidates``). An answer with a cloud missing is not
-        kept, nor is one from before a cloud joined or left.
+        by the caller (``candidates``), and so are those it is giving back
+        right now (their homes may not have taken them back yet). An answer
+        with a cloud missing is not kept, nor is one from before a cloud
+        joined or left.
         """
-        view = View([])
         if self.overlay is None:
-            return view
-        query = IdleQuery(
-            origin=self.cloud, min_battery=task.min_battery, capabilities=list(task.required)
-        )
+            return View([])
+        query = _idle_query(self.cloud, task)
         gathered = self._kept(query)
-        if gathered is None:
-            asked = self._clock()
-            gathered = self.overlay.gather_idle(query, self.gather_timeout)
-            view.gather_ms = gathered.elapsed_ms
-            if not gathered.missing:
-                with self._lock:
-                    if len(self._gathered) >= _GATHERED_MAX:
-                        self._gathered.clear()
-                    self._gathered[(query.min_battery, tuple(query.capabilities))] = (
-                        asked,
-                        gathered,
-                    )
+        if gathered is not None:
+            return self._view_of(gathered, exclude)
+        asked = self._clock()
+        gathered = self.overlay.gather_idle(query, self.gather_timeout)
+        if not gathered.missing:
+            with self._lock:
+                if len(self._gathered) >= _GATHERED_MAX:
+                    self._gathered.clear()
+                self._gathered[_filter_of(query)] = (asked, gathered)
+        view = self._view_of(gathered, exclude)
+        view.gather_ms = gathered.elapsed_ms
+        return view
+
+    def kept_robots(self, task: Task, exclude: set[str]) -> View | None:
+        """``remote_robots`` when it needs no question (no other cloud, or a fresh
+        answer), else None: cheap enough for the event loop's thread."""
+        if self.overlay is None or not self.others_live():
+            return View([])
+        gathered = self._kept(_idle_query(self.cloud, task))
+        return None if gathered is None else self._view_of(gathered, exclude)
+
+    def _view_of(self, gathered: Gathered, exclude: set[str]) -> View:
+        view = View([])
+        with self._lock:
+            returning = set(self._returning)
         for reply in gathered.replies.values():
             # A home answers for its own robots only: one it names as another
             # cloud's would be reserved and commanded there.
             view.robots += [
                 r
                 for r in reply.robots
-                if r.cloud == reply.cloud and r.cloud != self.cloud and r.id not in exclude
+                if r.cloud == reply.cloud
+                and r.cloud != self.cloud
+                and r.id not in exclude
+                and r.id not in returning
             ]
         if gathered.missing:
             view.notes.append(
@@ -204,7 +221,7 @@ class FederationView:
         """The other clouds' answer to ``query`` if one is fresh, from every live cloud."""
         assert self.overlay is not None
         with self._lock:
-            kept = self._gathered.get((query.min_battery, tuple(query.capabilities)))
+            kept = self._gathered.get(_filter_of(query))
         if kept is None or self._clock() - kept[0] >= self.gather_ttl:
             return None
         others = set(self.overlay.clouds()) - {self.cloud}
@@ -336,9 +353,11 @@ class FederationView:
             if not ids:
                 return
         try:
-            done = self.overlay.release(
-                cloud, Release(request_id=request_id, robots=ids, why=(why or None) and why[:500])
-            )
+            with self._giving_back(ids):
+                done = self.overlay.release(
+                    cloud,
+                    Release(request_id=request_id, robots=ids, why=(why or None) and why[:500]),
+                )
         except RoboCloudError as error:
             # The home reconciles with us when it is back.
             logger.warning("could not release %s at %s: %s", ids, cloud, error)
@@ -363,12 +382,34 @@ class FederationView:
             self.overlay.watch(cloud, robot)
         return ack
 
+    @contextlib.contextmanager
+    def _giving_back(self, robots: list[str]) -> Iterator[None]:
+        """While robots go back to their home, no selection here is offered them.
+
+        The request that held them may be over here already (so they are no
+        longer held), while a kept answer of their home still lists them idle
+        and the home has not yet taken them back: choosing them would only
+        meet a refusal.
+        """
+        with self._lock:
+            for robot in robots:
+                self._returning[robot] = self._returning.get(robot, 0) + 1
+        try:
+            yield
+        finally:
+            with self._lock:
+                for robot in robots:
+                    left = self._returning.pop(robot, 1) - 1
+                    if left > 0:
+                        self._returning[robot] = left
+
     def _stop_at(self, cloud: str, request_id: str, robots: list[str]) -> None:
         """Stop robots at their home and end their loans (a cancel), logging a failure."""
         assert self.overlay is not None
         stop = Release(request_id=request_id, robots=robots, why="canceled")
         try:
-            self.overlay.cancel(cloud, stop)
+            with self._giving_back(robots):
+                self.overlay.cancel(cloud, stop)
         except RoboCloudError as error:
             logger.warning("could not stop %s at %s: %s", robots, cloud, error)
 
@@ -408,6 +449,14 @@ class FederationView:
                 s()
 
         return stop
+
+
+def _idle_query(cloud: str, task: Task) -> IdleQuery:
+    return IdleQuery(origin=cloud, min_battery=task.min_battery, capabilities=list(task.required))
+
+
+def _filter_of(query: IdleQuery) -> tuple[float, tuple[str, ...]]:
+    return (query.min_battery, tuple(query.capabilities))
 
 
 def _by_cloud(robots: Sequence[tuple[str, str]]) -> dict[str, list[str]]:

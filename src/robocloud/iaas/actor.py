@@ -161,12 +161,17 @@ class RequestActor:
         A new request's first effects are the write of its ``selecting`` state,
         then the selection. The question to the other clouds only reads, and
         its answer travels while this cloud writes: it is asked first, and the
-        selection takes the answer. Only when other clouds are live; a cloud
-        alone runs as before.
+        selection takes the answer. Only when a question is needed: not for a
+        cloud alone, nor while the other clouds' answer to the same filter is
+        fresh (``FederationView.remote_robots``).
         """
         view = self.shell.view
         for effect in effects:
-            if isinstance(effect, lc.Select) and effect.attempt == 1 and view.others_live():
+            if (
+                isinstance(effect, lc.Select)
+                and effect.attempt == 1
+                and view.kept_robots(effect.task, set(effect.exclude)) is None
+            ):
                 if self._early is not None:
                     self._early[1].cancel()
                 task = effect.task
@@ -307,7 +312,12 @@ class RequestActor:
         else:
             if early is not None:
                 early[1].cancel()
-            gathered = await shell.blocking(shell.view.remote_robots, effect.task, exclude)
+            # No question to ask (no other cloud, or their fresh answer): no thread.
+            kept = shell.view.kept_robots(effect.task, exclude)
+            if kept is None:
+                gathered = await shell.blocking(shell.view.remote_robots, effect.task, exclude)
+            else:
+                gathered = kept
         if gathered.gather_ms > 0:  # other clouds were asked
             shell.metrics.overlay_seconds.labels("gather").observe(gathered.gather_ms / 1000)
         left_out = exclude | set(shell.held())

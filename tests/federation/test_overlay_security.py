@@ -399,8 +399,8 @@ class Desk:
     def info(self) -> CloudInfo:
         return CloudInfo(cloud=self.cloud, robots=1, idle=1)
 
-    def idle_robots(self, query: IdleQuery) -> IdleReply:
-        return IdleReply(cloud=self.cloud, robots=[])
+    def idle_robots(self, query: IdleQuery) -> bytes:
+        return IdleReply(cloud=self.cloud, robots=[]).model_dump_json().encode()
 
     def fleet(self) -> FleetReply:
         return FleetReply(cloud=self.cloud, robots=[])

@@ -241,6 +241,8 @@ class ZenohOverlay(HomeCommands):
         # asks which clouds to wait for, and a query per selection cost more
         # than the selection (the liveliness get waits for its timeout).
         self._live: set[str] = set()
+        self._clouds: list[str] = [cloud]  # sorted, this one included
+        self._presence_lock = threading.Lock()
         self._presence = session.liveliness().declare_subscriber(
             f"{keys.CLOUDS_TOKEN}/*", self._on_presence, history=True
         )
@@ -254,16 +256,17 @@ class ZenohOverlay(HomeCommands):
     # -- presence ------------------------------------------------------------
 
     def clouds(self) -> list[str]:
-        with self._lock:
-            return sorted(self._live | {self._cloud})
+        # A copy replaced whole, read without a lock: the event loop asks it.
+        return list(self._clouds)
 
     def _on_presence(self, sample: zenoh.Sample) -> None:
         name = str(sample.key_expr).rsplit("/", 1)[-1]
-        with self._lock:
+        with self._presence_lock:
             if sample.kind == zenoh.SampleKind.PUT:
                 self._live.add(name)
             else:
                 self._live.discard(name)
+            self._clouds = sorted(self._live | {self._cloud})
 
     def infos(self) -> list[CloudInfo]:
         out = [self._desk.info()]
@@ -338,17 +341,26 @@ class ZenohOverlay(HomeCommands):
             logger.exception("following %s of %s failed", robot_id, cloud)
 
     def _watch(self, cloud: str, robot_id: str) -> None:
+        # Only this thread changes the subscribers (``_later``): they are declared
+        # outside the lock, which the state callbacks take.
         key = robot_keys.state_key(cloud, robot_id)
         with self._lock:
             if key in self._subscribers:
                 return
-            self._subscribers[key] = self._session.declare_subscriber(key, self._on_sample)
+            batches_wanted = cloud not in self._batch_subscribers
+        subscriber = self._session.declare_subscriber(key, self._on_sample)
+        batches = (
+            self._session.declare_subscriber(
+                robot_keys.all_batches(cloud), lambda sample: self._on_batch(cloud, sample)
+            )
+            if batches_wanted
+            else None
+        )
+        with self._lock:
+            self._subscribers[key] = subscriber
             self._watched_ids.setdefault(cloud, set()).add(robot_id)
-            if cloud not in self._batch_subscribers:
-                self._batch_subscribers[cloud] = self._session.declare_subscriber(
-                    robot_keys.all_batches(cloud),
-                    lambda sample: self._on_batch(cloud, sample),
-                )
+            if batches is not None:
+                self._batch_subscribers[cloud] = batches
 
     def _unwatch(self, cloud: str, robot_id: str) -> None:
         key = robot_keys.state_key(cloud, robot_id)

@@ -230,7 +230,13 @@ class RequestActor:
             case lc.StopRobots(robots):
                 self._operate(lambda: self._stop(robots), "stop")
             case lc.Confirm(robots):
-                lost = await shell.blocking(shell.view.confirm, rid, list(robots))
+                here = shell.view.cloud
+                # Only loans turn firm: this cloud's own robots need no thread.
+                lost = (
+                    await shell.blocking(shell.view.confirm, rid, list(robots))
+                    if any(cloud != here for _, cloud in robots)
+                    else []
+                )
                 if lost:
                     await self._carry_out(
                         lc.Note(

@@ -113,3 +113,24 @@ def test_robots_commanded_with_a_reservation_and_given_back_are_stopped() -> Non
     assert sorted(stopped(b)) == [("b-0", rid.id), ("b-1", rid.id)]
     assert b.store.loans() == []
     assert b.link.state("b-0").task is None  # type: ignore[union-attr]
+
+
+def test_robots_commanded_by_a_reservation_whose_reply_was_lost_are_stopped() -> None:
+    from robocloud.errors import RoboCloudError
+
+    _, c = clouds(("cloud-a", "cloud-b"), robots=2)
+    a, b = c["cloud-a"], c["cloud-b"]
+    reserve = b.home.reserve
+
+    def lost_reply(origin: str, reservation: Reservation) -> object:
+        reserve(origin, reservation)  # lent and commanded at the home ...
+        raise RoboCloudError("the reply was lost")  # ... but the origin never hears it
+
+    b.home.reserve = lost_reply  # type: ignore[method-assign,assignment]
+    rid, _ = a.store.create_request("app", {})
+    pairs = [("b-0", "cloud-b")]
+    assert a.view.reserve(rid.id, pairs, {"b-0": go(rid.id)}) == ["b-0"]
+    assert assigned(b) == [("b-0", rid.id)]
+    assert stopped(b) == [("b-0", rid.id)]  # told to stop at once
+    assert b.store.loans() == []  # and not lent any more
+    assert a.view.take_ack(rid.id, "b-0") is None

@@ -186,6 +186,12 @@ class FederationView:
         view.gather_ms = gathered.elapsed_ms
         return view
 
+    def must_ask(self, task: Task) -> bool:
+        """Whether ``remote_robots`` would ask the other clouds (no fresh answer of theirs)."""
+        if self.overlay is None or not self.others_live():
+            return False
+        return self._kept(_idle_query(self.cloud, task)) is None
+
     def kept_robots(self, task: Task, exclude: set[str]) -> View | None:
         """``remote_robots`` when it needs no question (no other cloud, or a fresh
         answer), else None: cheap enough for the event loop's thread."""

@@ -170,7 +170,7 @@ class RequestActor:
             if (
                 isinstance(effect, lc.Select)
                 and effect.attempt == 1
-                and view.kept_robots(effect.task, set(effect.exclude)) is None
+                and view.must_ask(effect.task)
             ):
                 if self._early is not None:
                     self._early[1].cancel()

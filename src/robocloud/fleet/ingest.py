@@ -21,7 +21,7 @@ from __future__ import annotations
 import math
 from collections.abc import Container
 from dataclasses import dataclass
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, TypeVar
 
 import msgspec
 import pydantic
@@ -90,6 +90,19 @@ _STATE_FIELDS = frozenset(State.model_fields)
 _TASK_FIELDS = frozenset(TaskProgress.model_fields)
 _new = object.__new__
 _set = object.__setattr__
+
+M = TypeVar("M", State, TaskProgress)
+
+
+def _built(model: type[M], values: dict[str, Any], fields: frozenset[str]) -> M:
+    """A model holding ``values`` (every field), made as pydantic's own constructor leaves
+    it but without validating again: what msgspec decoded is already checked."""
+    built = _new(model)
+    _set(built, "__dict__", values)
+    _set(built, "__pydantic_fields_set__", fields)
+    _set(built, "__pydantic_extra__", None)
+    _set(built, "__pydantic_private__", None)
+    return built
 
 
 def _names_ok(names: set[str], *values: str) -> bool:
@@ -237,10 +250,8 @@ class StateReader:
             last = task if wire.last_task == wire.task else self._task(wire.last_task)
             if last is None:
                 return None
-        state = _new(State)
-        _set(
-            state,
-            "__dict__",
+        return _built(
+            State,
             {
                 "id": wire.id,
                 "cloud": wire.cloud,
@@ -256,11 +267,8 @@ class StateReader:
                 "seq": wire.seq,
                 "sent_at": wire.sent_at,
             },
+            _STATE_FIELDS,
         )
-        _set(state, "__pydantic_fields_set__", _STATE_FIELDS)
-        _set(state, "__pydantic_extra__", None)
-        _set(state, "__pydantic_private__", None)
-        return state
 
     def _capability_set(self, raw: bytes) -> dict[str, Capability] | None:
         """The capabilities of ``raw`` (their JSON), checked once and remembered by their bytes."""
@@ -281,21 +289,16 @@ class StateReader:
     def _task(self, wire: WireTask) -> TaskProgress | None:
         if not _names_ok(self._names, wire.request_id, *wire.capabilities):
             return None
-        task = _new(TaskProgress)
-        _set(
-            task,
-            "__dict__",
+        return _built(
+            TaskProgress,
             {
                 "request_id": wire.request_id,
                 "phase": wire.phase,
                 "progress": wire.progress,
                 "capabilities": wire.capabilities,
             },
+            _TASK_FIELDS,
         )
-        _set(task, "__pydantic_fields_set__", _TASK_FIELDS)
-        _set(task, "__pydantic_extra__", None)
-        _set(task, "__pydantic_private__", None)
-        return task
 
 
 def robot_named(payload: bytes) -> str | None:

@@ -42,7 +42,11 @@ import msgspec
 from pydantic import TypeAdapter, ValidationError
 
 from robocloud.domain import Robot, RobotLike, Task
-from robocloud.domain.records import CheckedRobotRecord, RobotRecord
+from robocloud.domain.records import (
+    CheckedRobotRecord,
+    RobotRecord,
+    may_hold_control_characters,
+)
 from robocloud.errors import InvalidInput, describe_validation_errors
 from robocloud.selection.filtering import filter_robots
 
@@ -197,9 +201,7 @@ def _read_columns(data: bytes | str, started: float) -> Candidates:
         task_error = error
     raw = document.robots
     del document
-    may_escape = (b"\\" in data or b"\x7f" in data) if isinstance(data, bytes) else (
-        "\\" in data or "\x7f" in data
-    )
+    may_escape = may_hold_control_characters(data)
     record: type[RobotRecord] = CheckedRobotRecord if may_escape else RobotRecord
     decoder: msgspec.json.Decoder[list[CheckedRobotRecord]] | msgspec.json.Decoder[
         list[RobotRecord]

@@ -71,3 +71,15 @@ class CheckedRobotRecord(RobotRecord, frozen=True, gc=False):
     id: CheckedName
     cloud: CheckedName
     capabilities: dict[CheckedName, CapabilityRecord]
+
+
+def may_hold_control_characters(document: bytes | str) -> bool:
+    """Whether a JSON document may hold a name the names' rule refuses.
+
+    JSON forbids raw control characters in strings, so only an escape (a
+    backslash) can make one; DEL may stand raw. Without either, no name in
+    the document can break the rule and ``RobotRecord`` may skip its check.
+    """
+    if isinstance(document, bytes):
+        return b"\\" in document or b"\x7f" in document
+    return "\\" in document or "\x7f" in document

@@ -41,7 +41,13 @@ import msgspec
 from pydantic import BaseModel, ConfigDict, Field
 
 from robocloud.domain import Robot
-from robocloud.domain.records import CheckedName, CheckedRobotRecord, RecordName, RobotRecord
+from robocloud.domain.records import (
+    CheckedName,
+    CheckedRobotRecord,
+    RecordName,
+    RobotRecord,
+    may_hold_control_characters,
+)
 from robocloud.domain.robot import Name
 from robocloud.fleet.messages import Ack, Assign
 
@@ -111,12 +117,11 @@ _CHECKED_IDLE = msgspec.json.Decoder(_CheckedIdleRobots)
 def decode_idle_reply(payload: bytes) -> IdleRobots:
     """The reply's robots, or ``ValueError`` saying what is wrong with it.
 
-    The names' rule (printable, one line) is checked only when the reply
-    holds an escape or a DEL byte: without one no string in it can hold a
-    control character (``robocloud.domain.records``). The check took two
-    thirds of the decoding.
+    The names' rule (printable, one line) is checked only when the reply may
+    break it (``may_hold_control_characters``): the check took two thirds of
+    the decoding.
     """
-    decoder = _CHECKED_IDLE if b"\\" in payload or b"\x7f" in payload else _IDLE
+    decoder = _CHECKED_IDLE if may_hold_control_characters(payload) else _IDLE
     try:
         return decoder.decode(payload)
     except (msgspec.DecodeError, msgspec.ValidationError) as error:

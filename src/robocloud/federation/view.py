@@ -171,17 +171,19 @@ class FederationView:
         """
         if self.overlay is None:
             return View([])
-        query = _idle_query(self.cloud, task)
-        gathered = self._kept(query)
+        gathered = self._kept(task)
         if gathered is not None:
             return self._view_of(gathered, exclude)
         asked = self._clock()
+        query = IdleQuery(
+            origin=self.cloud, min_battery=task.min_battery, capabilities=list(task.required)
+        )
         gathered = self.overlay.gather_idle(query, self.gather_timeout)
         if not gathered.missing:
             with self._lock:
                 if len(self._gathered) >= _GATHERED_MAX:
                     self._gathered.clear()
-                self._gathered[_filter_of(query)] = (asked, gathered)
+                self._gathered[_filter_of(task)] = (asked, gathered)
         view = self._view_of(gathered, exclude)
         view.gather_ms = gathered.elapsed_ms
         return view
@@ -190,14 +192,14 @@ class FederationView:
         """Whether ``remote_robots`` would ask the other clouds (no fresh answer of theirs)."""
         if self.overlay is None or not self.others_live():
             return False
-        return self._kept(_idle_query(self.cloud, task)) is None
+        return self._kept(task) is None
 
     def kept_robots(self, task: Task, exclude: set[str]) -> View | None:
         """``remote_robots`` when it needs no question (no other cloud, or a fresh
         answer), else None: cheap enough for the event loop's thread."""
         if self.overlay is None or not self.others_live():
             return View([])
-        gathered = self._kept(_idle_query(self.cloud, task))
+        gathered = self._kept(task)
         return None if gathered is None else self._view_of(gathered, exclude)
 
     def _view_of(self, gathered: Gathered, exclude: set[str]) -> View:
@@ -223,11 +225,11 @@ class FederationView:
             )
         return view
 
-    def _kept(self, query: IdleQuery) -> Gathered | None:
-        """The other clouds' answer to ``query`` if one is fresh, from every live cloud."""
+    def _kept(self, task: Task) -> Gathered | None:
+        """The other clouds' answer to ``task``'s filter if one is fresh, from every live cloud."""
         assert self.overlay is not None
         with self._lock:
-            kept = self._gathered.get(_filter_of(query))
+            kept = self._gathered.get(_filter_of(task))
         if kept is None or self._clock() - kept[0] >= self.gather_ttl:
             return None
         others = set(self.overlay.clouds()) - {self.cloud}
@@ -457,12 +459,9 @@ class FederationView:
         return stop
 
 
-def _idle_query(cloud: str, task: Task) -> IdleQuery:
-    return IdleQuery(origin=cloud, min_battery=task.min_battery, capabilities=list(task.required))
-
-
-def _filter_of(query: IdleQuery) -> tuple[float, tuple[str, ...]]:
-    return (query.min_battery, tuple(query.capabilities))
+def _filter_of(task: Task) -> tuple[float, tuple[str, ...]]:
+    """What the other clouds' answer depends on: the idle query's battery and capabilities."""
+    return (task.min_battery, tuple(task.required))
 
 
 def _by_cloud(robots: Sequence[tuple[str, str]]) -> dict[str, list[str]]:

@@ -495,6 +495,8 @@ def test_the_phone_layout_has_tabs(phone_page: Any, system: System) -> None:
                                                                             "page")
     expect(page.locator("#state-head")).to_have_attribute("data-request", request_id)
     for target in ("#state-badge", "#cancel"):
+        # The panel re-renders on every state change: wait until it shows, then measure.
+        expect(page.locator(target)).to_be_visible()
         box = page.locator(target).bounding_box()
         assert box and box["y"] + box["height"] <= 844, f"{target} is below the first screen"
     assert page.locator("#cancel").bounding_box()["height"] >= 40

@@ -506,3 +506,31 @@ def test_the_phone_layout_has_tabs(phone_page: Any, system: System) -> None:
     page.click("#cancel")
     page.click("#cancel-confirm")
     expect(page.locator("#state-head")).to_have_attribute("data-state", "canceled")
+
+
+def test_a_late_first_list_does_not_replace_an_id_being_typed(page: Any, system: System) -> None:
+    """The page selects the newest request once its first list arrives, unless the
+    operator has begun typing an id: a slow list used to overwrite what they typed."""
+    with system.iaas() as client:
+        client.post("/v1/requests", json={
+            "location": [500.0, 500.0], "actuating": {"grabber": 1}, "max_robots": 3,
+            "max_cost": 100.0, "max_time": 600.0, "min_battery": 100.0, "label": "newest"})
+    held: list[Any] = []
+
+    def hold(route: Any) -> None:  # the first list waits for the test
+        held.append(route)
+
+    page.route("**/api/requests?*", hold)
+    page.reload()
+    for _ in range(200):
+        if held:
+            break
+        page.wait_for_timeout(50)
+    assert held, "the page never asked for its first list"
+    page.fill("#lookup-id", "req-typed")
+    page.unroute("**/api/requests?*", hold)
+    for route in held:
+        route.continue_()
+    expect(page.locator("#requests-table tbody tr").first).to_be_visible()
+    page.wait_for_timeout(300)  # the list's handling, select included, has run by now
+    expect(page.locator("#lookup-id")).to_have_value("req-typed")

@@ -397,6 +397,9 @@ function showRequest(request) {
   statePanel.show(request);
 }
 
+// An operator typing an id has chosen: a first list arriving late must not select over it.
+$("lookup-id").addEventListener("input", () => { page.autoSelected = true; });
+
 $("lookup-form").addEventListener("submit", async (event) => {
   event.preventDefault();
   page.autoSelected = true;  // the operator chose: the first list must not select over it

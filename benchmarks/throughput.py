@@ -12,6 +12,8 @@ the POST to the ``dispatched`` entry of its history (same machine, same clock).
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import json
 import random
 import statistics
 import time
@@ -44,17 +46,68 @@ def _at(text: str) -> float:
     return datetime.fromisoformat(text.replace("Z", "+00:00")).timestamp()
 
 
+class Poster:
+    """POSTs JSON over plain HTTP/1.1 keep-alive connections: a load generator that costs little.
+
+    The generator shares the 2 cores with the IaaS it measures. httpx spent
+    about 5 ms of CPU per POST here (measured: 12.8 ms per request with the
+    read-back, 5.6 ms with this), CPU the IaaS then lacked. This writes the
+    request's bytes and reads the answer's status line, headers and body (by
+    Content-Length). Connections are opened on demand and reused; a rate's
+    connections are closed at its end, well within the server's 5 s keep-alive.
+    """
+
+    def __init__(self, url: str, key: str, path: str) -> None:
+        parsed = httpx.URL(url)
+        self.host, self.port = parsed.host, parsed.port or 80
+        self.head = (
+            f"POST {path} HTTP/1.1\r\nHost: {self.host}:{self.port}\r\n"
+            f"Authorization: Bearer {key}\r\nContent-Type: application/json\r\n"
+        ).encode()
+        self.idle: list[tuple[asyncio.StreamReader, asyncio.StreamWriter]] = []
+        self.opened: list[asyncio.StreamWriter] = []
+
+    async def post(self, body: dict[str, Any]) -> tuple[int, bytes]:
+        """The answer's status and body; an OSError or IncompleteReadError if the line broke."""
+        if self.idle:
+            reader, writer = self.idle.pop()
+        else:
+            reader, writer = await asyncio.open_connection(self.host, self.port)
+            self.opened.append(writer)
+        data = json.dumps(body).encode()
+        writer.write(self.head + f"Content-Length: {len(data)}\r\n\r\n".encode() + data)
+        head = await reader.readuntil(b"\r\n\r\n")
+        lines = head.decode("latin-1").split("\r\n")
+        status = int(lines[0].split(" ", 2)[1])
+        length = 0
+        for line in lines[1:]:
+            name, _, value = line.partition(":")
+            if name.lower() == "content-length":
+                length = int(value)
+        answer = await reader.readexactly(length)
+        self.idle.append((reader, writer))
+        return status, answer
+
+    async def close(self) -> None:
+        for writer in self.opened:
+            writer.close()
+        for writer in self.opened:
+            with contextlib.suppress(OSError):
+                await writer.wait_closed()
+
+
 async def offer(url: str, key: str, rate: float, seconds: float, seed: int) -> dict[str, Any]:
     """Send ``rate`` requests a second for ``seconds``; every request's fate, afterwards."""
     rng = random.Random(seed)
     headers = {"Authorization": f"Bearer {key}"}
-    # Idle connections are dropped before the server's 5 s keep-alive ends, so a
-    # request never goes out on a connection the server is closing.
-    limits = httpx.Limits(max_connections=128, max_keepalive_connections=128,
+    # The read-back's connections (httpx): idle ones are dropped before the
+    # server's 5 s keep-alive ends, so none goes out on a connection being closed.
+    limits = httpx.Limits(max_connections=32, max_keepalive_connections=32,
                           keepalive_expiry=2.0)
     sent: dict[str, float] = {}
     post_ms: list[float] = []
     refused: dict[int | str, int] = {}
+    poster = Poster(url, key, "/v1/requests")
     async with httpx.AsyncClient(base_url=url, headers=headers, timeout=60,
                                  limits=limits) as client:
 
@@ -63,16 +116,16 @@ async def offer(url: str, key: str, rate: float, seconds: float, seed: int) -> d
             at = time.time()
             t0 = time.perf_counter()
             try:
-                answer = await client.post("/v1/requests", json=body)
-            except httpx.HTTPError as error:  # the server dropped the connection
+                status, answer = await poster.post(body)
+            except (OSError, asyncio.IncompleteReadError) as error:  # the server dropped it
                 name = type(error).__name__
                 refused[name] = refused.get(name, 0) + 1
                 return
             post_ms.append((time.perf_counter() - t0) * 1000)
-            if answer.status_code == 202:
-                sent[answer.json()["id"]] = at
+            if status == 202:
+                sent[json.loads(answer)["id"]] = at
             else:
-                refused[answer.status_code] = refused.get(answer.status_code, 0) + 1
+                refused[status] = refused.get(status, 0) + 1
 
         total = int(rate * seconds)
         start = time.perf_counter() + 0.1
@@ -83,6 +136,7 @@ async def offer(url: str, key: str, rate: float, seconds: float, seed: int) -> d
                 await asyncio.sleep(delay)
             tasks.append(asyncio.ensure_future(one(i)))
         await asyncio.gather(*tasks)
+        await poster.close()
         window = time.perf_counter() - start
         # Read every request back once none is still being decided. While the IaaS
         # works through a backlog, one cheap list query a second asks whether any

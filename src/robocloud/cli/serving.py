@@ -55,7 +55,9 @@ def serve(app: FastAPI, listener: socket.socket, log_level: str, ready: str = ""
 
     ``ready`` is logged (INFO) once the lifespan is open, as the server starts.
     """
-    config = uvicorn.Config(app, log_level=log_level, access_log=False, lifespan="off")
+    config = uvicorn.Config(
+        app, log_level=log_level, access_log=False, lifespan="off", http="httptools"
+    )
     with _sigterm_as_interrupt():
         asyncio.run(_serve(app, config, listener, ready))
 

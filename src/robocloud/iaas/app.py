@@ -182,6 +182,9 @@ def create_app(
         lifespan=lifespan,
         docs_url=None,
         redoc_url=None,  # Swagger UI without a CDN: iaas/docs_ui.py
+        # The IaaS has its own metrics (/metrics) and no OpenTelemetry: FastAPI's
+        # checks for a configured provider cost every request a few lookups.
+        telemetry={"tracing": False, "metrics": False, "logs": False, "operation_spans": False},
     )
     app.state.settings = settings
     metrics = app.state.metrics = IaasMetrics()

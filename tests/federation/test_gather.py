@@ -48,7 +48,7 @@ def test_other_clouds_are_asked_while_the_selecting_state_is_written() -> None:
         selector=selector,
         rules=lc.Rules(),
         blocking=in_thread,
-        in_store=slow_store,
+        store_write=slow_store,
         follow=lambda *_: None,
         unfollow=lambda *_: None,
         publish=lambda _: None,

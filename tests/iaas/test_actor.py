@@ -36,7 +36,7 @@ def shell_for(store: MemoryRequestStore) -> Shell:
         selector=no_selection,
         rules=lc.Rules(),
         blocking=call,
-        in_store=call,
+        store_write=call,
         follow=lambda *_: None,
         unfollow=lambda *_: None,
         publish=lambda _: None,

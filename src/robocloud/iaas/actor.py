@@ -59,7 +59,7 @@ class Shell:
     selector: Selector
     rules: lc.Rules
     blocking: Callable[..., Awaitable[Any]]  # a blocking call on the IaaS's I/O threads
-    in_store: Callable[..., Awaitable[Any]]  # a call of the store, on the store's threads
+    store_write: Callable[..., Awaitable[Any]]  # a store write, made in the next turn
     follow: Callable[[str, lc.Pairs], None]
     unfollow: Callable[[str, lc.Pairs], None]
     publish: Callable[[RequestRecord], None]
@@ -285,7 +285,7 @@ class RequestActor:
     async def _write(self, method: Callable[..., T], *args: Any) -> T:
         """A store write, tried again while the store is unavailable."""
         return await self._again_while_unavailable(
-            lambda: self.shell.in_store(method, *args), "store write"
+            lambda: self.shell.store_write(method, *args), "store write"
         )
 
     async def _again_while_unavailable(self, work: Callable[[], Awaitable[T]], what: str) -> T:

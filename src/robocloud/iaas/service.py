@@ -42,6 +42,7 @@ from robocloud.iaas.actor import RequestActor, Selector, Shell
 from robocloud.iaas.config import Settings
 from robocloud.iaas.metrics import IaasMetrics
 from robocloud.iaas.selector import SelectionPool, SelectorSettings
+from robocloud.iaas.store_writes import StoreWrites
 from robocloud.selection.pipeline import select_problem
 from robocloud.selection.problem import CoalitionProblem
 from robocloud.selection.result import SelectionResult
@@ -82,6 +83,8 @@ class RequestService:
         self._store_threads = ThreadPoolExecutor(
             STORE_THREADS, thread_name_prefix=f"store-{settings.cloud}"
         )
+        # Writes go in turns, several in one transaction (iaas/store_writes.py).
+        self.store_write = StoreWrites(store, self._store_threads, self.store_failed)
         self._pool: SelectionPool | None = None
         if selector is None and settings.selection_workers > 0:
             self._pool = SelectionPool(
@@ -106,7 +109,7 @@ class RequestService:
                 time_scale=settings.time_scale,
             ),
             blocking=self.blocking,
-            in_store=self.in_store,
+            store_write=self.store_write,
             follow=self._follow,
             unfollow=self._unfollow,
             publish=self._publish,
@@ -158,7 +161,10 @@ class RequestService:
         return await loop.run_in_executor(self._io, partial(function, *args))
 
     async def in_store(self, function: Callable[..., T], *args: Any) -> T:
-        """``function(*args)`` on the store's threads (a failure counted in the metrics)."""
+        """``function(*args)`` on the store's threads (a failure counted in the metrics).
+
+        For reads; writes go through ``store_write``, in turns.
+        """
         loop = asyncio.get_running_loop()
         try:
             return await loop.run_in_executor(self._store_threads, partial(function, *args))
@@ -219,7 +225,7 @@ class RequestService:
     ) -> RequestRecord:
         posted_at = self._shell.mono()
         task_json = task.model_dump(mode="json")
-        record, created = await self.in_store(
+        record, created = await self.store_write(
             self.store.create_request, application, task_json, label, idempotency_key
         )
         if not created:
@@ -276,7 +282,7 @@ class RequestService:
         if actor is not None:
             raise Unavailable(f"the cancel of request {request_id} could not be stored; ask again.")
         # Not run by this process (it is stopping): store it directly.
-        record = await self.in_store(
+        record = await self.store_write(
             self.store.transition, request_id, "canceled", None, "canceled by the application"
         )
         self._publish(record)
@@ -362,7 +368,7 @@ class RequestService:
 
         async def note() -> None:  # the request is over: only its history learns it
             with contextlib.suppress(NotFound):
-                record = await self.in_store(
+                record = await self.store_write(
                     self.store.add_event, request_id, lc.loan_ended_note(robot, home, why)
                 )
                 self._publish(record)
@@ -479,7 +485,7 @@ class RequestService:
                 why = describe_validation_errors(error.errors(), "task").message
                 log.error("request %s cannot be resumed: %s", record.id, why)
                 with contextlib.suppress(Conflict, NotFound):
-                    await self.in_store(
+                    await self.store_write(
                         self.store.transition,
                         record.id,
                         "failed",

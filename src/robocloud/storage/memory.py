@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import builtins
 import threading
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from datetime import datetime
 from typing import Any
@@ -16,6 +16,7 @@ from typing import Any
 from robocloud.domain import ACTIVE_STATES, FINAL_STATES
 from robocloud.storage import rules
 from robocloud.storage.records import Loan, RequestRecord, StateChange, new_loan_id, new_request_id
+from robocloud.storage.store import Outcome, outcome_of
 
 
 @dataclass(frozen=True)
@@ -50,6 +51,11 @@ class MemoryRequestStore:
         # robot; the ended loans an origin is still to be told about.
         self._lent: dict[tuple[str, str], dict[str, str]] = {}
         self._untold: dict[str, set[str]] = {}
+
+    def together(self, calls: Sequence[Callable[[], Any]]) -> builtins.list[Outcome]:
+        """Run ``calls`` in turn, no other thread's call in between."""
+        with self._lock:
+            return [outcome_of(call) for call in calls]
 
     # requests
 

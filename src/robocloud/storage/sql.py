@@ -7,6 +7,12 @@ SQLite, which runs in WAL mode with a busy timeout so several threads and
 processes can share one file. Reads on PostgreSQL are REPEATABLE READ so a
 request and its history come from one snapshot.
 
+On SQLite, writes that wait for each other are committed together (a group
+commit, ``_commit_with_others``): whoever gets the write lock runs every write
+waiting at that moment, in order, in one transaction, each in a savepoint, so
+each still sees the ones before it and is all or nothing. ``together`` hands
+in several calls at once (the IaaS's writes, ``robocloud.iaas.store_writes``).
+
 No robot is ever reserved twice because ``reservations.robot_id`` is the
 primary key; when two PostgreSQL transactions race for a robot the loser gets a
 unique violation, and ``reserve`` (or ``lend``) runs again and reports the
@@ -19,11 +25,14 @@ from __future__ import annotations
 import builtins
 import logging
 import random
+import sqlite3
 import threading
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import AbstractContextManager, contextmanager, nullcontext
+from dataclasses import dataclass
 from datetime import UTC, datetime
+from functools import partial
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -72,7 +81,8 @@ from robocloud.storage.schema import (
     requests,
     reservations,
 )
-from robocloud.storage.store import StoreUnavailable
+from robocloud.storage.sqlite_rows import SqliteRows
+from robocloud.storage.store import Outcome, StoreUnavailable, outcome_of
 
 # The statements of a request's writes, built once: building and keying a Core
 # statement cost more than running it (measured: 5.3 ms per transition with
@@ -119,6 +129,7 @@ BUSY_TIMEOUT_S = 15.0  # how long a SQLite writer waits for another process's wr
 CONNECT_TIMEOUT_S = 5  # PostgreSQL
 POOL_SIZE, POOL_OVERFLOW = 5, 15  # connections per store: kept, and more under load
 ATTEMPTS = 20  # of a transaction that lost a race (unique violation, deadlock)
+GROUP_MAX = 64  # SQLite writes committed in one transaction at most
 # PostgreSQL: deadlock detected, serialization failure. Both only mean "run it again".
 _TRANSIENT_SQLSTATES = frozenset({"40P01", "40001"})
 _SCHEMA_LOCK = 0x726F626F  # pg_advisory_xact_lock key while creating the tables
@@ -166,6 +177,11 @@ class SqlRequestStore:
         # One writer at a time inside this process: SQLite serializes writers
         # anyway, and waiting on a lock is faster than its busy-retry sleeps.
         self._write_lock: threading.Lock | None = threading.Lock() if self._sqlite else None
+        # SQLite writes waiting for the write lock, committed as a group, and
+        # the group's connection on the thread that commits it.
+        self._waiting: list[_Write] = []
+        self._waiting_lock = threading.Lock()
+        self._grouped = threading.local()
         self._engine = self._create_engine()
         try:
             self._run(self._create_schema, write=True)
@@ -206,21 +222,26 @@ class SqlRequestStore:
                     return existing, False
             request_id = new_request_id()
             now = self._clock()
-            conn.execute(
-                _NEW_REQUEST,
-                {
-                    "id": request_id,
-                    "application": application,
-                    "label": label,
-                    "task": task_text,
-                    "state": "received",
-                    "created_at": now,
-                    "updated_at": now,
-                    "idempotency_key": idempotency_key,
-                },
-            )
+            values = {
+                "id": request_id,
+                "application": application,
+                "label": label,
+                "task": task_text,
+                "state": "received",
+                "reason": None,
+                "selection": None,
+                "created_at": now,
+                "updated_at": now,
+                "idempotency_key": idempotency_key,
+            }
             line = StateChange(state="received", at=now)
-            conn.execute(_ADD_LINE, [_line_row(request_id, 1, line)])
+            if self._sqlite:
+                rows = SqliteRows(conn)
+                rows.new_request(values)
+                rows.add_line(request_id, 1, line)
+            else:
+                conn.execute(_NEW_REQUEST, values)
+                conn.execute(_ADD_LINE, [_line_row(request_id, 1, line)])
             record = RequestRecord(
                 id=request_id,
                 application=application,
@@ -250,6 +271,10 @@ class SqlRequestStore:
 
     def get(self, request_id: str, application: str | None = None) -> RequestRecord | None:
         def work(conn: Connection) -> RequestRecord | None:
+            if self._sqlite:
+                rows = SqliteRows(conn)
+                found = rows.request(request_id, application)
+                return None if found is None else _record(found, tuple(rows.history(request_id)))
             if application is None:
                 row = conn.execute(_ROW, {"rid": request_id}).first()
             else:
@@ -319,7 +344,10 @@ class SqlRequestStore:
 
             record = self._change(conn, request_id, values, "state", detail, check)
             if new_state in FINAL_STATES:
-                conn.execute(_DROP_HOLDS, {"rid": request_id})
+                if self._sqlite:
+                    SqliteRows(conn).drop_holds(request_id)
+                else:
+                    conn.execute(_DROP_HOLDS, {"rid": request_id})
             return record
 
         return self._run(work, write=True)
@@ -700,9 +728,12 @@ class SqlRequestStore:
         return engine
 
     @contextmanager
-    def _transaction(self, *, write: bool) -> Iterator[Connection]:
+    def _transaction(self, *, write: bool, locked: bool = False) -> Iterator[Connection]:
+        """One transaction; a SQLite write takes the write lock unless ``locked`` (held)."""
         lock: AbstractContextManager[Any] = (
-            self._write_lock if write and self._write_lock is not None else nullcontext()
+            self._write_lock
+            if write and self._write_lock is not None and not locked
+            else nullcontext()
         )
         with lock, self._engine.connect() as conn:
             if write:
@@ -720,12 +751,130 @@ class SqlRequestStore:
         retry_integrity: bool = False,
     ) -> T:
         """``work`` in one transaction, run again when it only lost a race."""
+        grouped: Connection | None = getattr(self._grouped, "conn", None)
+        if grouped is not None:
+            # A call of a group, on the thread that commits it: in its transaction.
+            try:
+                return work(grouped)
+            except sqlite3.Error as error:  # a statement of SqliteRows
+                raise DBAPIError.instance(None, None, error, sqlite3.Error) from error
+        if write and self._write_lock is not None:
+            value: T = self._commit_with_others([_Write(work, retry_integrity)])[0].get()
+            return value
+        return self._run_alone(work, write=write, retry_integrity=retry_integrity)
+
+    def together(self, calls: Sequence[Callable[[], Any]]) -> builtins.list[Outcome]:
+        """Run ``calls`` in turn: on SQLite in one transaction, each in a savepoint."""
+        if self._write_lock is None:
+            return [outcome_of(call) for call in calls]  # PostgreSQL: writers run side by side
+        writes = [_Write(partial(_without_connection, call), False) for call in calls]
+        return self._commit_with_others(writes)
+
+    def _commit_with_others(self, mine: builtins.list[_Write]) -> builtins.list[Outcome]:
+        """SQLite writes, committed with every write waiting when the write lock is free.
+
+        SQLite has one writer at a time, and each transaction costs its BEGIN,
+        COMMIT and a connection on top of its statements. Under load the
+        writes line up here; whoever gets the lock runs every waiting write
+        (its own among them, or done already) in one transaction, in the
+        order they came, each in a savepoint (``_commit_group``).
+        """
+        assert self._write_lock is not None
+        with self._waiting_lock:
+            self._waiting.extend(mine)
+        with self._write_lock:
+            while not all(write.done for write in mine):
+                with self._waiting_lock:
+                    group = self._waiting[:GROUP_MAX]
+                    del self._waiting[:GROUP_MAX]
+                try:
+                    self._commit_group(group)
+                finally:
+                    for write in group:  # only when interrupted: no write waits forever
+                        if not write.done:
+                            write.outcome = Outcome(
+                                error=StoreUnavailable(
+                                    f"A write to the store at {self.url} was interrupted.",
+                                    self.url,
+                                )
+                            )
+        return [write.outcome for write in mine if write.outcome is not None]
+
+    def _commit_group(self, group: builtins.list[_Write]) -> None:
+        """Run and commit ``group`` (the write lock held); every write gets its outcome.
+
+        Each write runs in a savepoint: one that fails is rolled back alone,
+        and the others are committed. A write the database itself refused (a
+        ``DBAPIError`` or ``sqlite3.Error``: it may have lost a race, or the
+        disk may be full)
+        runs again alone after the group, with the retries of ``_run_alone``,
+        and so does every write of a group whose transaction could not be
+        begun or committed: nothing of it was stored.
+        """
+        again = group
+        if len(group) > 1:
+            outcomes: builtins.list[Outcome | None] = []
+            try:
+                with self._transaction(write=True, locked=True) as conn:
+                    cursor = conn.connection.driver_connection.cursor()  # type: ignore[union-attr]
+                    for write in group:
+                        cursor.execute("SAVEPOINT one_write")
+                        outcome = self._in_group(conn, write.work)
+                        if outcome.error is not None:
+                            cursor.execute("ROLLBACK TO one_write")
+                        cursor.execute("RELEASE one_write")
+                        refused = isinstance(outcome.error, DBAPIError | sqlite3.Error)
+                        outcomes.append(None if refused else outcome)
+            except Exception:
+                outcomes = [None] * len(group)  # nothing of the group was stored
+            again = []
+            for write, found in zip(group, outcomes, strict=True):
+                if found is None:
+                    again.append(write)
+                else:
+                    write.outcome = found
+        for write in again:
+            write.outcome = outcome_of(partial(self._alone, write))
+
+    def _alone(self, write: _Write) -> Any:
+        """``write`` in a transaction of its own (the write lock held)."""
+        return self._run_alone(
+            partial(self._grouped_work, write.work),
+            write=True,
+            retry_integrity=write.retry_integrity,
+            locked=True,
+        )
+
+    def _grouped_work(self, work: Callable[[Connection], T], conn: Connection) -> T:
+        value: T = self._in_group(conn, work).get()
+        return value
+
+    def _in_group(self, conn: Connection, work: Callable[[Connection], Any]) -> Outcome:
+        """``work`` on ``conn``, where the store's own calls also use ``conn``."""
+        self._grouped.conn = conn
+        try:
+            return outcome_of(lambda: work(conn))
+        finally:
+            self._grouped.conn = None
+
+    def _run_alone(
+        self,
+        work: Callable[[Connection], T],
+        *,
+        write: bool,
+        retry_integrity: bool = False,
+        locked: bool = False,
+    ) -> T:
+        """``work`` in a transaction of its own, run again when it only lost a race."""
         attempt = 0
         while True:
             attempt += 1
             try:
-                with self._transaction(write=write) as conn:
-                    return work(conn)
+                with self._transaction(write=write, locked=locked) as conn:
+                    try:
+                        return work(conn)
+                    except sqlite3.Error as error:  # a statement of SqliteRows
+                        raise DBAPIError.instance(None, None, error, sqlite3.Error) from error
             except IntegrityError:
                 if retry_integrity and attempt < ATTEMPTS:
                     continue
@@ -820,7 +969,11 @@ class SqlRequestStore:
 
         A lapsed lease is free, whoever held it; a lapsed loan ends.
         """
-        rows = conn.execute(_HOLDS_OF, {"robots": robots}).all()
+        rows: Sequence[Any] = (
+            SqliteRows(conn).holds_of(robots)
+            if self._sqlite
+            else conn.execute(_HOLDS_OF, {"robots": robots}).all()
+        )
         lapsed = [row for row in rows if rules.is_expired(row.expires_at, now)]
         if lapsed:
             self._drop(conn, lapsed, now)
@@ -951,7 +1104,10 @@ class SqlRequestStore:
         FOR UPDATE is a no-op on SQLite, whose write transaction already
         excludes every other writer.
         """
-        state = conn.execute(_STATE_FOR_UPDATE, {"rid": request_id}).scalar_one_or_none()
+        if self._sqlite:
+            state = SqliteRows(conn).state(request_id)
+        else:
+            state = conn.execute(_STATE_FOR_UPDATE, {"rid": request_id}).scalar_one_or_none()
         if state is None:
             raise rules.no_such_request(request_id)
         return str(state)
@@ -974,7 +1130,9 @@ class SqlRequestStore:
         if taken:
             return taken
         new = sorted(r for r in robots if r not in held)  # one order: no deadlocks
-        if new:
+        if new and self._sqlite:
+            SqliteRows(conn).hold(request_id, new, expires_at, now)
+        elif new:
             # One multi-row INSERT (not executemany, which psycopg pipelines
             # and then logs the unique violation of a lost race as an error).
             conn.execute(
@@ -1018,23 +1176,38 @@ class SqlRequestStore:
         updated and the line added; the record returned is built from them,
         not read back. The row lock makes the line's number safe.
         """
-        row = conn.execute(_ROW_FOR_UPDATE, {"rid": request_id}).first()
+        sqlite = SqliteRows(conn) if self._sqlite else None
+        if sqlite is not None:
+            row = sqlite.request(request_id)
+        else:
+            found = conn.execute(_ROW_FOR_UPDATE, {"rid": request_id}).first()
+            row = None if found is None else dict(found._mapping)
         if row is None:
             raise rules.no_such_request(request_id)
         if check is not None:
-            check(row.state)
-        history = [_state_change(h) for h in conn.execute(_HISTORY, {"rid": request_id})]
+            check(row["state"])
+        history = (
+            sqlite.history(request_id)
+            if sqlite is not None
+            else [_state_change(h) for h in conn.execute(_HISTORY, {"rid": request_id})]
+        )
         now = self._clock()
         changed = {**values, "updated_at": now}
-        conn.execute(
-            _update_of(frozenset(changed)),
-            {"rid": request_id, **{f"new_{c}": v for c, v in changed.items()}},
-        )
+        if sqlite is not None:
+            sqlite.update(request_id, changed)
+        else:
+            conn.execute(
+                _update_of(frozenset(changed)),
+                {"rid": request_id, **{f"new_{c}": v for c, v in changed.items()}},
+            )
         if line is not None:
-            state = str(changed.get("state", row.state))
+            state = str(changed.get("state", row["state"]))
             history.append(StateChange(state=state, at=now, detail=detail, kind=line))
-            conn.execute(_ADD_LINE, [_line_row(request_id, len(history), history[-1])])
-        return _record({**row._mapping, **changed}, tuple(history))
+            if sqlite is not None:
+                sqlite.add_line(request_id, len(history), history[-1])
+            else:
+                conn.execute(_ADD_LINE, [_line_row(request_id, len(history), history[-1])])
+        return _record({**row, **changed}, tuple(history))
 
     def _load(self, conn: Connection, request_id: str) -> RequestRecord:
         row = conn.execute(_ROW, {"rid": request_id}).one()
@@ -1052,6 +1225,24 @@ class SqlRequestStore:
             for line in lines:
                 history[line.request_id].append(_state_change(line))
         return [_record(row._mapping, tuple(history[row.id])) for row in rows]
+
+
+@dataclass(eq=False)
+class _Write:
+    """A SQLite write waiting for its group commit, then its outcome."""
+
+    work: Callable[[Connection], Any]
+    retry_integrity: bool
+    outcome: Outcome | None = None
+
+    @property
+    def done(self) -> bool:
+        return self.outcome is not None
+
+
+def _without_connection(call: Callable[[], T], _conn: Connection) -> T:
+    """A call of ``together`` as the work of a write: the store's calls find the connection."""
+    return call()
 
 
 def _state_change(line: Row[Any]) -> StateChange:

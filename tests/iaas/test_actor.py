@@ -10,6 +10,7 @@ from robocloud.federation.view import FederationView
 from robocloud.fleet import MemoryRobotLink
 from robocloud.iaas import lifecycle as lc
 from robocloud.iaas.actor import RequestActor, Shell
+from robocloud.selection.pipeline import select_problem
 from robocloud.storage import MemoryRequestStore
 
 TASK = {
@@ -102,3 +103,52 @@ def test_commands_are_timed_as_acks_here_and_as_overlay_calls_for_other_clouds()
     cancels = registry.get_sample_value("robocloud_overlay_seconds_count", {"operation": "cancel"})
     assert cancels is None  # the stop went to this cloud's robot only
 
+
+
+def _idle_grabber(robot_id: str, x: float) -> Robot:
+    return Robot.model_validate(
+        {
+            "id": robot_id, "cloud": "cloud-a", "position": [x, 0.0], "speed": 1.0,
+            "battery": 90.0, "status": "idle", "travel_cost_per_m": 0.1,
+            "capabilities": {"grabber": {"kind": "actuating", "time": 1.0, "cost": 1.0}},
+        }
+    )  # fmt: skip
+
+
+def _two_selections_at_once(turns: int | None) -> list[str]:
+    """Two requests select at once; the robot each chose (a-1 is nearer for both)."""
+    store = MemoryRequestStore()
+    shell = shell_for(store)
+    shell.view.link.put(_idle_grabber("a-1", 1.0))  # type: ignore[attr-defined]
+    shell.view.link.put(_idle_grabber("a-2", 2.0))  # type: ignore[attr-defined]
+    claims: dict[str, str] = {}
+    shell.held = lambda: claims.keys()
+    shell.claim = lambda rid, robots: claims.update((r, rid) for r in robots)
+
+    async def in_a_worker(problem: Any, task: Task) -> Any:
+        await asyncio.sleep(0.02)  # the worker's time, while the other request waits
+        return select_problem(problem, task, "exact", ranking=False)
+
+    shell.selector = in_a_worker
+    task = Task.model_validate(TASK)
+
+    async def main() -> list[str]:
+        if turns is not None:
+            semaphore = asyncio.Semaphore(turns)
+            shell.selection_turn = lambda: semaphore
+        records = [store.create_request("app", TASK)[0] for _ in range(2)]
+        actors = [RequestActor(shell, lc.Life(r.id, task), r) for r in records]
+        selected = await asyncio.gather(
+            *(actor._select(lc.Select(task, frozenset())) for actor in actors)
+        )
+        return [s.chosen[0].robot for s in selected]  # type: ignore[attr-defined]
+
+    return asyncio.run(main())
+
+
+def test_a_selection_reads_its_candidates_in_its_turn_not_before() -> None:
+    # One turn at a time: the second reads its candidates after the first claimed a-1.
+    assert _two_selections_at_once(turns=1) == ["a-1", "a-2"]
+    # Without turns both read them before either chose, and both choose a-1: one
+    # of the two reservations would then find it taken and select again.
+    assert _two_selections_at_once(turns=None) == ["a-1", "a-1"]

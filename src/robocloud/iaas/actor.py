@@ -17,10 +17,12 @@ growing pause, up to 5 s): a state change is never skipped, only delayed.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import random
 import time
 from collections.abc import Awaitable, Callable, Iterable, Sequence
+from contextlib import AbstractAsyncContextManager
 from dataclasses import dataclass, field
 from typing import Any, Protocol, TypeVar
 
@@ -69,6 +71,9 @@ class Shell:
     wall: Callable[[], float] = time.time
     mono: Callable[[], float] = time.monotonic
     metrics: IaasMetrics = field(default_factory=IaasMetrics)
+    # A turn at the selector: the candidates are read once the selection can
+    # start, not before a wait for a free worker (``RequestActor._select``).
+    selection_turn: Callable[[], AbstractAsyncContextManager[Any]] = contextlib.nullcontext
 
 
 Reply = asyncio.Future[RequestRecord]
@@ -326,18 +331,27 @@ class RequestActor:
                 gathered = kept
         if gathered.gather_ms > 0:  # other clouds were asked
             shell.metrics.overlay_seconds.labels("gather").observe(gathered.gather_ms / 1000)
-        left_out = exclude | set(shell.held())
-        found = await shell.blocking(shell.view.candidates, effect.task, left_out, gathered.robots)
-        started = shell.mono()
-        result = await shell.selector(found.problem, effect.task)
-        shell.metrics.selection_seconds.observe(shell.mono() - started)
+        # Read the candidates only when the selection can start at once, and
+        # claim the chosen robots before the turn ends: candidates read before
+        # a wait for a worker were stale by then, and selections that waited
+        # together picked the same robots (measured at 100 requests/s: 1,132
+        # reservations found a robot taken, for 600 requests).
+        async with shell.selection_turn():
+            left_out = exclude | set(shell.held())
+            found = await shell.blocking(
+                shell.view.candidates, effect.task, left_out, gathered.robots
+            )
+            started = shell.mono()
+            result = await shell.selector(found.problem, effect.task)
+            shell.metrics.selection_seconds.observe(shell.mono() - started)
+            if result.chosen is not None:
+                # Other selections see them as taken until the reservation is done.
+                shell.claim(self.request_id, result.chosen.robots)
         selection = selection_json(result)
         notes = (*gathered.notes, *([result.note] if result.note else []))
         if result.chosen is None:
             return lc.Selected(None, selection, result.reason, notes, result.complete)
         chosen = members_for(found, result.chosen.robots, effect.offset)
-        # Other selections see them as taken until the reservation is done.
-        shell.claim(self.request_id, result.chosen.robots)
         return lc.Selected(chosen, selection, None, notes, result.complete)
 
     def _commands_ahead(self) -> dict[str, AssignCommand]:

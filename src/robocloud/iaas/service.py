@@ -99,6 +99,12 @@ class RequestService:
                 self.blocking,
             )
             selector = self._pool
+        # As many selections at once as the pool has workers at most (two
+        # without a pool): a request waits for its turn before it reads its
+        # candidates, not after.
+        self._selection_turns = asyncio.Semaphore(
+            self._pool.settings.max_workers if self._pool is not None else 2
+        )
         self._shell = Shell(
             store=store,
             view=view,
@@ -118,6 +124,7 @@ class RequestService:
             unclaim=self._unclaim,
             wall=clock,
             metrics=self.metrics,
+            selection_turn=lambda: self._selection_turns,
         )
         self._actors: dict[str, RequestActor] = {}
         self._tasks: set[asyncio.Task[Any]] = set()  # actors and background work

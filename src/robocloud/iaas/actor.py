@@ -373,10 +373,13 @@ class RequestActor:
         }
 
     async def _reserve(self, robots: lc.Pairs, commands: dict[str, AssignCommand]) -> lc.Event:
+        shell = self.shell
+        # This cloud's robots only: a store write, made with the others of its
+        # turn; with another cloud's, a thread waits on the overlay.
+        local = all(cloud == shell.view.cloud for _, cloud in robots)
+        call = shell.store_write if local else shell.blocking
         try:
-            taken = await self.shell.blocking(
-                self.shell.view.reserve, self.request_id, list(robots), commands
-            )
+            taken = await call(shell.view.reserve, self.request_id, list(robots), commands)
         except Conflict:
             return lc.Reserved(tuple(r for r, _ in robots))  # the request is over
         return lc.Reserved(tuple(taken))

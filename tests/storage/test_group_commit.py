@@ -22,7 +22,7 @@ from sqlalchemy.exc import DBAPIError
 from storage_testing import TASK
 
 from robocloud.errors import RoboCloudError
-from robocloud.storage import SqlRequestStore
+from robocloud.storage import SqlRequestStore, StoreUnavailable
 
 
 @pytest.fixture
@@ -194,3 +194,34 @@ def test_a_write_alone_needs_no_group(store: SqlRequestStore) -> None:
     assert store.transition(rid, "selecting").state == "selecting"
     assert len(commits) == 1
     assert store._waiting == []
+
+
+def test_a_group_that_cannot_begin_fails_every_write_at_once(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr("robocloud.storage.sql.BUSY_TIMEOUT_S", 0.1)
+    path = tmp_path / "store.db"
+    store = SqlRequestStore(f"sqlite:///{path}")
+    ids = [store.create_request("wildfire", TASK)[0].id for _ in range(5)]
+    begins: list[int] = []
+    transaction = store._transaction
+
+    def counted(**how: Any) -> Any:
+        begins.append(1)
+        return transaction(**how)
+
+    monkeypatch.setattr(store, "_transaction", counted)
+    other = sqlite3.connect(path, isolation_level=None)
+    other.execute("BEGIN IMMEDIATE")  # another process holds the write lock
+
+    outcomes = store.together([lambda rid=rid: store.transition(rid, "selecting") for rid in ids])
+
+    # One try for the group: five writes one by one would each wait out the timeout.
+    assert len(begins) == 1
+    assert all(isinstance(o.error, StoreUnavailable) for o in outcomes)
+    assert "locked" in str(outcomes[0].error)
+    other.execute("ROLLBACK")
+    other.close()
+    assert {store.get(rid).state for rid in ids} == {"received"}  # type: ignore[union-attr]
+    assert store.transition(ids[0], "selecting").state == "selecting"
+    store.close()

@@ -804,37 +804,45 @@ class SqlRequestStore:
         """Run and commit ``group`` (the write lock held); every write gets its outcome.
 
         Each write runs in a savepoint: one that fails is rolled back alone,
-        and the others are committed. A write the database itself refused (a
-        ``DBAPIError`` or ``sqlite3.Error``: it may have lost a race, or the
-        disk may be full)
-        runs again alone after the group, with the retries of ``_run_alone``,
-        and so does every write of a group whose transaction could not be
-        begun or committed: nothing of it was stored.
+        and the others are committed. A write whose own statement the database
+        refused (a ``DBAPIError`` or ``sqlite3.Error``: it may have lost a
+        race) runs again alone after the group, with the retries of
+        ``_run_alone``. When the group's transaction itself cannot be begun or
+        committed (the file is locked by another process past the busy
+        timeout, the disk is full), nothing of it was stored and every write
+        gets that error at once: run again one by one, each would wait out the
+        same busy timeout.
         """
-        again = group
-        if len(group) > 1:
-            outcomes: builtins.list[Outcome | None] = []
-            try:
-                with self._transaction(write=True, locked=True) as conn:
-                    cursor = conn.connection.driver_connection.cursor()  # type: ignore[union-attr]
-                    for write in group:
-                        cursor.execute("SAVEPOINT one_write")
-                        outcome = self._in_group(conn, write.work)
-                        if outcome.error is not None:
-                            cursor.execute("ROLLBACK TO one_write")
-                        cursor.execute("RELEASE one_write")
-                        refused = isinstance(outcome.error, DBAPIError | sqlite3.Error)
-                        outcomes.append(None if refused else outcome)
-            except Exception:
-                outcomes = [None] * len(group)  # nothing of the group was stored
-            again = []
-            for write, found in zip(group, outcomes, strict=True):
-                if found is None:
-                    again.append(write)
-                else:
-                    write.outcome = found
-        for write in again:
-            write.outcome = outcome_of(partial(self._alone, write))
+        if len(group) == 1:
+            group[0].outcome = outcome_of(partial(self._alone, group[0]))
+            return
+        outcomes: builtins.list[Outcome | None] = []
+        try:
+            with self._transaction(write=True, locked=True) as conn:
+                cursor = conn.connection.driver_connection.cursor()  # type: ignore[union-attr]
+                for write in group:
+                    cursor.execute("SAVEPOINT one_write")
+                    outcome = self._in_group(conn, write.work)
+                    if outcome.error is not None:
+                        cursor.execute("ROLLBACK TO one_write")
+                    cursor.execute("RELEASE one_write")
+                    refused = isinstance(outcome.error, DBAPIError | sqlite3.Error)
+                    outcomes.append(None if refused else outcome)
+        except Exception as error:
+            failed = Outcome(error=self._as_unavailable(error))
+            for write in group:
+                write.outcome = failed
+            return
+        for write, found in zip(group, outcomes, strict=True):
+            write.outcome = outcome_of(partial(self._alone, write)) if found is None else found
+
+    def _as_unavailable(self, error: Exception) -> Exception:
+        """The error a write gets when its group could not be stored."""
+        if isinstance(error, sqlite3.Error):
+            error = DBAPIError.instance(None, None, error, sqlite3.Error)
+        if isinstance(error, DBAPIError):
+            return self._unavailable(error)
+        return error
 
     def _alone(self, write: _Write) -> Any:
         """``write`` in a transaction of its own (the write lock held)."""

@@ -9,7 +9,7 @@ from robocloud.domain import Robot, Task
 from robocloud.federation.view import FederationView
 from robocloud.fleet import MemoryRobotLink
 from robocloud.iaas import lifecycle as lc
-from robocloud.iaas.actor import RequestActor, Shell
+from robocloud.iaas.actor import Inbox, RequestActor, Shell
 from robocloud.selection.pipeline import select_problem
 from robocloud.storage import MemoryRequestStore
 
@@ -152,3 +152,24 @@ def test_a_selection_reads_its_candidates_in_its_turn_not_before() -> None:
     # Without turns both read them before either chose, and both choose a-1: one
     # of the two reservations would then find it taken and select again.
     assert _two_selections_at_once(turns=None) == ["a-1", "a-1"]
+
+
+def test_the_inbox_gives_letters_in_order_and_a_tick_when_none_came() -> None:
+    async def main() -> list[Any]:
+        inbox = Inbox()
+        inbox.put_nowait((lc.CancelAsked(), None))
+        first = await inbox.next(10.0)  # waiting already: no wait
+        waiting = asyncio.ensure_future(inbox.next(10.0))
+        await asyncio.sleep(0)
+        inbox.put_nowait((None, None))  # wakes the waiting one
+        inbox.put_nowait((lc.Tick(), None))
+        second = await asyncio.wait_for(waiting, 5)
+        third = await inbox.next(10.0)
+        none_came = await inbox.next(0.01)
+        return [first[0], second[0], third[0], none_came[0], inbox.empty()]
+
+    first, second, third, none_came, empty = asyncio.run(main())
+    assert isinstance(first, lc.CancelAsked)
+    assert second is None
+    assert isinstance(third, lc.Tick) and isinstance(none_came, lc.Tick)
+    assert empty

@@ -21,6 +21,7 @@ import contextlib
 import logging
 import random
 import time
+from collections import deque
 from collections.abc import Awaitable, Callable, Iterable, Sequence
 from contextlib import AbstractAsyncContextManager
 from dataclasses import dataclass, field
@@ -93,7 +94,7 @@ class RequestActor:
         self.posted_at = posted_at
         self.life = life
         self.record = record
-        self.inbox: asyncio.Queue[tuple[lc.Event | None, Reply | None]] = asyncio.Queue()
+        self.inbox = Inbox()
         self._ops: set[asyncio.Task[None]] = set()
         # The other clouds' idle robots, asked for before the effects ahead of
         # the selection are carried out (``_ask_others_early``).
@@ -121,10 +122,7 @@ class RequestActor:
             next_tick = self.shell.mono() + TICK
             while not (self.life.final and not self._ops and self.inbox.empty()):
                 wait = max(0.0, next_tick - self.shell.mono())
-                try:
-                    event, reply = await asyncio.wait_for(self.inbox.get(), wait)
-                except TimeoutError:
-                    event, reply = lc.Tick(), None
+                event, reply = await self.inbox.next(wait)
                 if event is not None:
                     await self._handle(event)
                 if reply is not None:
@@ -427,6 +425,55 @@ class RequestActor:
             else:
                 operation = "dispatch" if command == "assign" else "cancel"
                 shell.metrics.overlay_seconds.labels(operation).observe(elapsed)
+
+
+Letter = tuple[lc.Event | None, Reply | None]  # an event (None: only wake up), a reply
+
+
+class Inbox:
+    """An actor's inbox: what was posted, in order; ``next`` waits at most until the tick.
+
+    A request's actor waits on its inbox a dozen times in its life. On a
+    plain ``asyncio.Queue`` each wait was ``wait_for(queue.get(), ...)``: a
+    task, a timer and callbacks. Here it is one future and one timer, and
+    none when a letter is waiting already.
+    """
+
+    def __init__(self) -> None:
+        self._letters: deque[Letter] = deque()
+        self._waiter: asyncio.Future[None] | None = None
+
+    def put_nowait(self, letter: Letter) -> None:
+        self._letters.append(letter)
+        waiter = self._waiter
+        if waiter is not None and not waiter.done():
+            waiter.set_result(None)
+
+    def empty(self) -> bool:
+        return not self._letters
+
+    def get_nowait(self) -> Letter:
+        return self._letters.popleft()
+
+    async def next(self, wait: float) -> Letter:
+        """The first letter, or a ``Tick`` when none came within ``wait`` seconds."""
+        if not self._letters:
+            loop = asyncio.get_running_loop()
+            self._waiter = waiter = loop.create_future()
+            timer = loop.call_later(wait, _wake, waiter)
+            try:
+                await waiter
+            finally:
+                timer.cancel()
+                self._waiter = None
+            if not self._letters:
+                return lc.Tick(), None
+        return self._letters.popleft()
+
+
+def _wake(waiter: asyncio.Future[None]) -> None:
+    if not waiter.done():
+        waiter.set_result(None)
 
 
 def _answer(reply: Reply, record: RequestRecord) -> None:

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import asyncio
+import threading
+import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -118,3 +120,41 @@ def test_on_sqlite_a_turn_is_one_transaction(tmp_path: Path) -> None:
     assert len(commits) == len(turns.turns) < 30
     assert [store.get(rid) for rid in ids] == answers
     store.close()
+
+
+def test_several_takers_make_writes_side_by_side() -> None:
+    store = MemoryRequestStore()
+    ids = [store.create_request("wildfire", TASK)[0].id for _ in range(2)]
+
+    class Slow(Turns):
+        """A store whose turns wait for the test: a round trip to a database server."""
+
+        def __init__(self, inner: RequestStore) -> None:
+            super().__init__(inner)
+            self.running = 0
+            self.release = threading.Event()
+
+        def together(self, calls: Sequence[Callable[[], Any]]) -> list[Outcome]:
+            self.running += 1
+            self.release.wait(10)
+            self.running -= 1
+            return super().together(calls)
+
+    async def most_at_once(takers: int) -> int:
+        slow = Slow(store)
+        writes = StoreWrites(slow, ThreadPoolExecutor(4), takers=takers)  # type: ignore[arg-type]
+        first = asyncio.ensure_future(writes(store.add_event, ids[0], "first"))
+        while slow.running < 1:
+            await asyncio.sleep(0.005)
+        second = asyncio.ensure_future(writes(store.add_event, ids[1], "second"))
+        deadline = time.monotonic() + 2
+        while slow.running < 2 and time.monotonic() < deadline:
+            await asyncio.sleep(0.005)
+        most = slow.running
+        slow.release.set()
+        await asyncio.gather(first, second)
+        return most
+
+    assert asyncio.run(most_at_once(takers=1)) == 1  # the second waits for the next turn
+    assert asyncio.run(most_at_once(takers=2)) == 2
+    assert [len(store.get(rid).history) for rid in ids] == [3, 3]  # type: ignore[union-attr]

@@ -83,8 +83,16 @@ class RequestService:
         self._store_threads = ThreadPoolExecutor(
             STORE_THREADS, thread_name_prefix=f"store-{settings.cloud}"
         )
-        # Writes go in turns, several in one transaction (iaas/store_writes.py).
-        self.store_write = StoreWrites(store, self._store_threads, self.store_failed)
+        # Writes go in turns, several in one transaction (iaas/store_writes.py):
+        # one turn at a time on a local store, whose writers take turns anyway
+        # (SQLite); on PostgreSQL each write of a turn is its own transaction,
+        # and several turns run side by side.
+        self.store_write = StoreWrites(
+            store,
+            self._store_threads,
+            self.store_failed,
+            takers=1 if store.local_reads else STORE_THREADS,
+        )
         self._pool: SelectionPool | None = None
         if selector is None and settings.selection_workers > 0:
             self._pool = SelectionPool(

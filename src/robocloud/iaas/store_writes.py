@@ -31,20 +31,25 @@ TURN_MAX = 64  # writes handed to the store in one turn at most
 
 
 class StoreWrites:
-    """Queues the loop's store writes; one thread of ``executor`` makes them, in turns."""
+    """Queues the loop's store writes; threads of ``executor`` (one unless told) make them."""
 
     def __init__(
         self,
         store: RequestStore,
         executor: Executor,
         failed: Callable[[Callable[..., Any]], None] = lambda function: None,
+        takers: int = 1,
     ) -> None:
         self._store = store
         self._executor = executor
         self._failed = failed  # told of each write that found the store unavailable
+        # Threads taking turns at once, at most: one where the store has one
+        # writer at a time (SQLite), more where writers run side by side
+        # (PostgreSQL, whose ``together`` makes each call alone).
+        self._most = takers
         self._lock = threading.Lock()
         self._waiting: list[tuple[Callable[..., Any], Callable[[], Any], asyncio.Future[Any]]] = []
-        self._taking = False  # a thread is taking turns now
+        self._takers = 0  # threads taking turns now
 
     async def __call__(self, function: Callable[..., T], *args: Any) -> T:
         """``function(*args)`` (a method of the store), made in the next turn."""
@@ -52,14 +57,15 @@ class StoreWrites:
         answer: asyncio.Future[T] = loop.create_future()
         with self._lock:
             self._waiting.append((function, partial(function, *args), answer))
-            start = not self._taking
-            self._taking = True
+            start = self._takers < self._most
+            if start:
+                self._takers += 1
         if start:
             try:
                 self._executor.submit(self._take_turns, loop)
             except RuntimeError:  # the executor is shut down: the IaaS is stopping
                 with self._lock:
-                    self._taking = False
+                    self._takers -= 1
                 raise
         return await answer
 
@@ -70,7 +76,7 @@ class StoreWrites:
                 turn = self._waiting[:TURN_MAX]
                 del self._waiting[:TURN_MAX]
                 if not turn:
-                    self._taking = False
+                    self._takers -= 1
                     return
             try:
                 outcomes = self._store.together([call for _, call, _ in turn])
@@ -80,7 +86,7 @@ class StoreWrites:
                 loop.call_soon_threadsafe(self._answer, turn, outcomes)
             except RuntimeError:  # the loop is closed: nobody waits any more
                 with self._lock:
-                    self._taking = False
+                    self._takers -= 1
                 return
 
     def _answer(

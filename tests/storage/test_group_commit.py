@@ -19,9 +19,9 @@ from typing import Any
 import pytest
 from sqlalchemy import event
 from sqlalchemy.exc import DBAPIError
-from storage_testing import TASK
+from storage_testing import TASK, Backend
 
-from robocloud.errors import RoboCloudError
+from robocloud.errors import Conflict, NotFound, RoboCloudError
 from robocloud.storage import SqlRequestStore, StoreUnavailable
 
 
@@ -225,3 +225,31 @@ def test_a_group_that_cannot_begin_fails_every_write_at_once(
     assert {store.get(rid).state for rid in ids} == {"received"}  # type: ignore[union-attr]
     assert store.transition(ids[0], "selecting").state == "selecting"
     store.close()
+
+
+def test_together_answers_each_call_on_every_store(backend: Backend) -> None:
+    store = backend.open()
+    rid = store.create_request("wildfire", TASK)[0].id
+
+    outcomes = store.together(
+        [
+            lambda: store.transition(rid, "selecting"),
+            lambda: store.transition(rid, "completed"),  # not from selecting
+            lambda: store.reserve(rid, ["a-1"]),
+            lambda: store.add_event("req-aaaaaaaaaaaa", "no such request"),
+            lambda: store.add_event(rid, "after the others"),
+        ]
+    )
+
+    assert outcomes[0].get().state == "selecting"
+    assert isinstance(outcomes[1].error, Conflict)
+    assert outcomes[2].get() == []
+    assert isinstance(outcomes[3].error, NotFound)
+    last = outcomes[4].get()
+    assert [(h.state, h.detail) for h in last.history] == [
+        ("received", None),
+        ("selecting", None),
+        ("selecting", "after the others"),
+    ]
+    assert store.get(rid) == last
+    assert store.reservations() == {"a-1": rid}

@@ -142,6 +142,16 @@ def lease_end(now: datetime, lease_seconds: float | None) -> datetime | None:
     return now + timedelta(seconds=lease_seconds)
 
 
+def aware_utc(value: Any) -> datetime | None:
+    """A time read with raw SQL (UTC text from SQLite, a datetime from PostgreSQL), aware UTC."""
+    if value is None:
+        return None
+    if isinstance(value, str):
+        value = datetime.fromisoformat(value)
+    assert isinstance(value, datetime)
+    return value.replace(tzinfo=UTC) if value.tzinfo is None else value.astimezone(UTC)
+
+
 def is_expired(expires_at: datetime | None, now: datetime) -> bool:
     return expires_at is not None and expires_at < now
 

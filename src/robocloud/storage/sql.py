@@ -31,7 +31,7 @@ import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import AbstractContextManager, contextmanager, nullcontext
 from dataclasses import dataclass
-from datetime import UTC, datetime
+from datetime import datetime
 from functools import partial
 from pathlib import Path
 from typing import Any, TypeVar
@@ -953,8 +953,8 @@ class SqlRequestStore:
         rows = [
             {
                 **row,
-                "expires_at": _aware(row["expires_at"]),
-                "created_at": _aware(row["created_at"]),
+                "expires_at": rules.aware_utc(row["expires_at"]),
+                "created_at": rules.aware_utc(row["created_at"]),
             }
             for row in kept
             if row["request_id"] not in set(shadows)
@@ -1309,13 +1309,3 @@ def _loan(row: Row[Any], history: tuple[StateChange, ...] = ()) -> Loan:
         tell_origin=bool(row.tell_origin),
         history=history,
     )
-
-
-def _aware(value: Any) -> datetime | None:
-    """A time read with raw SQL from either database, as an aware UTC datetime."""
-    if value is None:
-        return None
-    if isinstance(value, str):
-        value = datetime.fromisoformat(value)
-    assert isinstance(value, datetime)
-    return value.replace(tzinfo=UTC) if value.tzinfo is None else value.astimezone(UTC)

@@ -25,20 +25,12 @@ from typing import Any, NamedTuple
 from sqlalchemy import Connection
 
 from robocloud.storage.records import StateChange
+from robocloud.storage.rules import aware_utc
+from robocloud.storage.schema import UTCDateTime, requests
 
-REQUEST_COLUMNS = (
-    "id",
-    "application",
-    "label",
-    "task",
-    "state",
-    "reason",
-    "selection",
-    "idempotency_key",
-    "created_at",
-    "updated_at",
-)
-_TIMES = frozenset({"created_at", "updated_at"})
+# The columns of ``requests`` in the table's order, and those holding times.
+REQUEST_COLUMNS = tuple(column.name for column in requests.columns)
+_TIMES = frozenset(c.name for c in requests.columns if isinstance(c.type, UTCDateTime))
 _ROW = f"SELECT {', '.join(REQUEST_COLUMNS)} FROM requests WHERE id = ?"
 _ROW_OF = _ROW + " AND application = ?"
 _HISTORY = "SELECT kind, state, detail, at FROM request_history WHERE request_id = ? ORDER BY seq"
@@ -72,8 +64,6 @@ def text_time(value: datetime) -> str:
     return value.astimezone(UTC).strftime("%Y-%m-%d %H:%M:%S.%f")
 
 
-def time_of(text: str | None) -> datetime | None:
-    return None if text is None else datetime.fromisoformat(text).replace(tzinfo=UTC)
 
 
 class SqliteRows:
@@ -94,7 +84,7 @@ class SqliteRows:
             return None
         row = dict(zip(REQUEST_COLUMNS, found, strict=True))
         for name in _TIMES:
-            row[name] = time_of(row[name])
+            row[name] = aware_utc(row[name])
         return row
 
     def state(self, request_id: str) -> str | None:
@@ -105,7 +95,7 @@ class SqliteRows:
         return [
             StateChange(
                 state=state,
-                at=time_of(at),  # type: ignore[arg-type]
+                at=aware_utc(at),  # type: ignore[arg-type]
                 detail=detail,
                 kind="event" if kind == "event" else "state",
             )
@@ -144,7 +134,7 @@ class SqliteRows:
             part = robots[start : start + CHUNK]
             marks = ", ".join("?" for _ in part)
             found += [
-                Hold(robot, request, loan, time_of(expires))
+                Hold(robot, request, loan, aware_utc(expires))
                 for robot, request, loan, expires in self._cursor.execute(
                     "SELECT robot_id, request_id, loan_id, expires_at FROM reservations "
                     f"WHERE robot_id IN ({marks})",

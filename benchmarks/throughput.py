@@ -14,7 +14,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
-import os
 import random
 import statistics
 import time
@@ -25,6 +24,7 @@ from typing import Any
 import httpx
 import numpy as np
 
+from benchmarks.fleet import cpu_seconds
 from benchmarks.report import Column, Goal, SectionReport, Table
 from benchmarks.service import clouds
 
@@ -101,12 +101,6 @@ class Poster:
         for writer in self.opened:
             with contextlib.suppress(OSError):
                 await writer.wait_closed()
-
-
-def cpu_seconds(pid: int) -> float:
-    """The CPU time (user and system) a process has used so far."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 async def offer(

@@ -47,6 +47,16 @@ def shell_for(store: MemoryRequestStore) -> Shell:
     )
 
 
+def _idle_grabber(robot_id: str, x: float) -> Robot:
+    return Robot.model_validate(
+        {
+            "id": robot_id, "cloud": "cloud-a", "position": [x, 0.0], "speed": 1.0,
+            "battery": 90.0, "status": "idle", "travel_cost_per_m": 0.1,
+            "capabilities": {"grabber": {"kind": "actuating", "time": 1.0, "cost": 1.0}},
+        }
+    )  # fmt: skip
+
+
 def test_a_cancel_posted_after_the_actor_ended_is_answered_at_once() -> None:
     store = MemoryRequestStore()
     record, _ = store.create_request("app", TASK)
@@ -70,15 +80,7 @@ def test_commands_are_timed_as_acks_here_and_as_overlay_calls_for_other_clouds()
     store = MemoryRequestStore()
     record, _ = store.create_request("app", TASK)
     shell = shell_for(store)
-    shell.view.link.put(  # type: ignore[attr-defined]
-        Robot.model_validate(
-            {
-                "id": "a-1", "cloud": "cloud-a", "position": [1.0, 0.0], "speed": 1.0,
-                "battery": 90.0, "status": "idle", "travel_cost_per_m": 0.1,
-                "capabilities": {"grabber": {"kind": "actuating", "time": 1.0, "cost": 1.0}},
-            }
-        )
-    )
+    shell.view.link.put(_idle_grabber("a-1", 1.0))  # type: ignore[attr-defined]
     members = [
         lc.Member(robot, cloud, ("grabber",), 1.0, 1.0)
         for robot, cloud in (("a-1", "cloud-a"), ("b-1", "cloud-b"))
@@ -103,16 +105,6 @@ def test_commands_are_timed_as_acks_here_and_as_overlay_calls_for_other_clouds()
     cancels = registry.get_sample_value("robocloud_overlay_seconds_count", {"operation": "cancel"})
     assert cancels is None  # the stop went to this cloud's robot only
 
-
-
-def _idle_grabber(robot_id: str, x: float) -> Robot:
-    return Robot.model_validate(
-        {
-            "id": robot_id, "cloud": "cloud-a", "position": [x, 0.0], "speed": 1.0,
-            "battery": 90.0, "status": "idle", "travel_cost_per_m": 0.1,
-            "capabilities": {"grabber": {"kind": "actuating", "time": 1.0, "cost": 1.0}},
-        }
-    )  # fmt: skip
 
 
 def _two_selections_at_once(turns: int | None) -> list[str]:

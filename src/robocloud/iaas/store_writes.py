@@ -1,4 +1,4 @@
-"""The IaaS's writes to its store, taken in turns by one thread: ``StoreWrites``.
+"""The IaaS's writes to its store, taken in turns: ``StoreWrites``.
 
 Every request writes five or six times in its life (created, selecting,
 dispatched, underway, completed, and notes), each from the event loop. Made
@@ -10,8 +10,11 @@ one transaction on SQLite, each write in a savepoint), then gives every
 answer back to the loop in one call. Under load a turn carries tens of writes
 for the price of one; alone, a write costs what it did.
 
-Each write is still all or nothing, answered with its own value or error, and
-made in the order it was asked for.
+Each write is still all or nothing and answered with its own value or error.
+With one thread taking turns (SQLite) writes are made in the order they were
+asked for. On PostgreSQL several threads take turns side by side, so writes of
+two turns may be made in either order; a request's actor waits for each of
+its writes before it asks for the next, so its own stay in order.
 """
 
 from __future__ import annotations

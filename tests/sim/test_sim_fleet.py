@@ -57,7 +57,8 @@ def setup() -> Iterator[Setup]:
     endpoint = free_endpoint()
     router = open_router([endpoint])
     client = open_client([endpoint])
-    link = ZenohRobotLink(router, CLOUD, offline_after=1.0, command_timeout=1.0)
+    # Robots publish every 0.9 s; 2.5 s of silence leaves room for a loaded machine.
+    link = ZenohRobotLink(router, CLOUD, offline_after=2.5, command_timeout=1.0)
     heard: dict[str, list[State]] = {}
     lock = threading.Lock()
 
@@ -142,9 +143,11 @@ def test_a_silent_robot_goes_offline_and_does_not_answer(setup: Setup) -> None:
     ack = control(setup, json.dumps({"fault": "silent", "robot": "t-0003"}).encode())
     assert ack.ok and ack.robot == "t-0003"
     assert wait_until(
-        lambda: {r.id: r.status for r in setup.link.robots()}["t-0003"] == "offline", timeout=3.0
+        lambda: {r.id: r.status for r in setup.link.robots()}["t-0003"] == "offline", timeout=5.0
     )
-    assert setup.link.robots()[3].status == "idle"  # t-0004 speaks on
+    heard_from_t4 = len(setup.heard["t-0004"])
+    assert wait_until(lambda: len(setup.heard["t-0004"]) > heard_from_t4, timeout=3.0)  # speaks on
+    assert {r.id: r.status for r in setup.link.robots()}["t-0004"] == "idle"
     lost = setup.link.assign("t-0003", go(setup, "t-0003", 1.0, 1.0, "r-lost"))
     assert lost.error == "robot t-0003 did not answer."
 

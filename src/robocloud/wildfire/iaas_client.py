@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import re
+import time
 from typing import Any
 
 import httpx
@@ -28,6 +29,10 @@ MAX_ANSWER_BYTES = 64 * 1024 * 1024
 # IaaS gives, and a bound on how many are followed (100,000 robots).
 ROBOTS_PAGE = 10_000
 MAX_ROBOT_PAGES = 10
+# A read whose timeout was noticed this much after it was due timed out while
+# this process stood still (stopped, swapped out, a paused VM), not because the
+# IaaS was slow: the read is tried once more.
+STALL_MARGIN = 1.0
 
 # Errors raised before a byte of the call left: the IaaS cannot have acted on it.
 NOT_SENT = (httpx.ConnectError, httpx.ConnectTimeout, httpx.PoolTimeout, httpx.UnsupportedProtocol)
@@ -67,6 +72,7 @@ class IaasClient:
         self._http = httpx.AsyncClient(
             base_url=self.base_url, headers=headers, timeout=timeout, transport=transport
         )
+        self.timeout = timeout
         self.failures = 0  # calls without a usable answer, or answered 5xx (the metrics)
 
     async def aclose(self) -> None:
@@ -129,6 +135,14 @@ class IaasClient:
     ) -> tuple[Any, str | None]:
         """The parsed answer, and the URL of its ``Link: <...>; rel="next"`` if it has one."""
         try:
+            started = time.monotonic()
+            try:
+                return await self._exchange_once(method, path, timeout=timeout, **kwargs)
+            except IaasUnreachable as error:
+                limit = self.timeout if timeout is None else timeout
+                stalled = time.monotonic() - started > limit + STALL_MARGIN
+                if not (method == "GET" and error.status == 504 and stalled):
+                    raise
             return await self._exchange_once(method, path, timeout=timeout, **kwargs)
         except IaasError as error:
             if isinstance(error, IaasUnreachable) or error.status >= 500:

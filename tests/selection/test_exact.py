@@ -1,13 +1,16 @@
+import dataclasses
+
 import numpy as np
 import pytest
 from brute_force import brute_force_front
 from instances import random_problem
 
-from robocloud.domain import Robot, Task
+from robocloud.domain import Coalition, Robot, Task
 from robocloud.selection import covering
+from robocloud.selection.budget import NO_DEADLINE
 from robocloud.selection.choice import choose
 from robocloud.selection.covering import CoverSolver
-from robocloud.selection.exact import cheapest_cover, exact_front, prune
+from robocloud.selection.exact import _Sweep, cheapest_cover, exact_front, exact_search, prune
 from robocloud.selection.filtering import filter_robots
 from robocloud.selection.problem import CoalitionProblem
 
@@ -163,3 +166,38 @@ def test_every_tie_is_found_by_branch_and_bound(
 ) -> None:
     monkeypatch.setattr(covering, "GRID_LIMIT", 0)
     test_every_tie_is_found(seed)
+
+
+def one_robot_problem(rng: np.random.Generator, n: int) -> CoalitionProblem:
+    """A task one robot can do: one capability, needed once (the sweep's fast path)."""
+    base = random_problem(rng, n)
+    k = base.uses.shape[1]
+    need = np.zeros(k, dtype=np.int64)
+    need[int(rng.integers(k))] = 1
+    return dataclasses.replace(base, need=need, max_robots=max(1, base.max_robots))
+
+
+def swept_front(problem: CoalitionProblem) -> list[Coalition]:
+    """The general epsilon-constraint sweep, without the one-robot fast path."""
+    keep = prune(problem)
+    if keep.size == 0:
+        return []
+    solver = CoverSolver(problem, keep, NO_DEADLINE)
+    return _Sweep(problem, solver, NO_DEADLINE).run(problem.largest_useful_coalition, keep).front
+
+
+@pytest.mark.parametrize("seed", range(150))
+def test_a_one_robot_task_takes_the_fast_path_and_its_front_is_brute_forces(seed: int) -> None:
+    problem = one_robot_problem(np.random.default_rng(seed), n=int(seed % 16) + 1)
+    outcome = exact_search(problem)
+    assert outcome.nodes == 0 and outcome.steps <= 1 and outcome.complete  # no covering search
+    assert outcome.front == brute_force_front(problem)
+    assert outcome.front == swept_front(problem)
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_a_one_robot_front_among_many_candidates_is_the_sweeps(seed: int) -> None:
+    problem = one_robot_problem(np.random.default_rng(1000 + seed), n=500)
+    front = exact_search(problem).front
+    assert front == swept_front(problem)
+    assert all(c.size == 1 for c in front)

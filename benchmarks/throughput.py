@@ -142,6 +142,7 @@ async def offer(
                 refused[status] = refused.get(status, 0) + 1
 
         total = int(rate * seconds)
+        own_cpu = time.process_time()
         start = time.perf_counter() + 0.1
         tasks = []
         for i in range(total):
@@ -152,6 +153,7 @@ async def offer(
         await asyncio.gather(*tasks)
         await poster.close()
         window = time.perf_counter() - start
+        own_cpu = time.process_time() - own_cpu
         # Read every request back once none is still being decided. While the IaaS
         # works through a backlog, one cheap list query a second asks whether any
         # is left (reading each request's history then would load the IaaS the
@@ -194,7 +196,7 @@ async def offer(
                 await asyncio.sleep(0.5)
     return {"rate": rate, "window": window, "sent": total, "accepted": len(sent),
             "refused": refused, "states": states, "latencies": latencies, "post_ms": post_ms,
-            "unsettled": len(pending), "iaas_cpu": iaas_cpu}
+            "unsettled": len(pending), "iaas_cpu": iaas_cpu, "sender_cpu": own_cpu}
 
 
 def _pct(xs: list[float], q: float) -> float:

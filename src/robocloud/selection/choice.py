@@ -24,8 +24,11 @@ import numpy as np
 
 from robocloud.domain import Coalition
 from robocloud.errors import InvalidInput
-from robocloud.selection.promethee import usual_net_flows
+from robocloud.selection.promethee import usual_net_flows, usual_net_flows_small
 
+# Fronts up to this size are weighed in plain Python (the same numbers, faster
+# than numpy's per-call cost there).
+SMALL_FRONT = 24
 # (T, C, N) weights per priority, as MODEL.md fixes them.
 CHOICE_WEIGHTS: dict[str, tuple[float, float, float]] = {
     "balanced": (1 / 3, 1 / 3, 1 / 3),
@@ -43,11 +46,14 @@ def choose(front: Sequence[Coalition], priority: str = "balanced") -> Coalition 
         )
     if not front:
         return None
-    matrix = np.array([[c.time, c.cost, float(c.size)] for c in front])
-    phi = usual_net_flows(matrix, np.array(weights), np.ones(3, dtype=bool))
+    rows = [(c.time, c.cost, float(c.size)) for c in front]
+    if len(front) <= SMALL_FRONT:
+        phi: Sequence[float] = usual_net_flows_small(rows, weights, (True, True, True))
+    else:
+        phi = usual_net_flows(np.array(rows), np.array(weights), np.ones(3, dtype=bool)).tolist()
     # Flows are sums of multiples of 0.2/(n-1) or 1/(3(n-1)): rounding only
     # merges values that differ by floating point noise.
-    best = round(float(phi.max()), 9)
+    best = round(max(phi), 9)
     tied = [c for c, f in zip(front, phi, strict=True) if round(float(f), 9) == best]
     return min(tied, key=lambda c: (c.cost, c.time, c.size, c.robots))
 

@@ -76,9 +76,18 @@ def terminate_all(processes: list[subprocess.Popen[bytes]], wait: float = 10.0) 
 
 @contextlib.contextmanager
 def clouds(
-    workdir: Path, counts: list[int], speedup: float = 1.0, churn: bool = False
+    workdir: Path,
+    counts: list[int],
+    speedup: float = 1.0,
+    churn: bool = False,
+    recharge_below: float | None = None,
 ) -> Iterator[Running]:
-    """Start len(counts) clouds (IaaS + simulator), robots ``speedup`` times the clock."""
+    """Start len(counts) clouds (IaaS + simulator), robots ``speedup`` times the clock.
+
+    ``recharge_below``: idle robots below that battery charge (the simulator's
+    ``--recharge-below``), so a long stream of tasks does not run the fleet dry.
+    """
+    recharge = [] if recharge_below is None else ["--recharge-below", str(recharge_below)]
     key = secrets.token_urlsafe(12)
     env = {**os.environ, "ROBOCLOUD_API_KEYS": f"bench={key}"}
     python = [sys.executable, "-m", "robocloud.cli.main"]
@@ -105,7 +114,8 @@ def clouds(
             log = open(workdir / f"{name}-sim.log", "ab")  # noqa: SIM115
             processes.append(subprocess.Popen(
                 [*python, "sim", "--cloud", name, "--robots", str(n), "--connect", endpoint,
-                 "--seed", str(i), "--speedup", str(speedup), *([] if churn else ["--no-churn"])],
+                 "--seed", str(i), "--speedup", str(speedup), *([] if churn else ["--no-churn"]),
+                 *recharge],
                 stdout=log, stderr=subprocess.STDOUT))
         headers = {"Authorization": f"Bearer {key}"}
         for url, n in zip(urls, counts, strict=True):

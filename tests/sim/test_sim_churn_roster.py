@@ -70,3 +70,30 @@ def test_churn_keeps_the_shares_near_the_scenario() -> None:
         assert share[status] == pytest.approx(0.15, abs=0.06)
     low_idle = [r for r in robots if r.status == "idle" and r.battery < churn.rates.low_battery]
     assert len(low_idle) <= 2  # sent charging at their next step
+
+
+def test_without_churn_a_low_idle_robot_recharges_and_nothing_else_moves() -> None:
+    robots = fleet(60)
+    churn = Churn(np.random.default_rng(0), enabled=False, recharge_below=20.0)
+    for robot in robots:
+        churn.adopt(robot)
+    idle = [r for r in robots if r.status == "idle"]
+    low, fine = idle[0], idle[1]
+    low.battery, fine.battery = 4.0, 25.0
+    others = [(r.id, r.status, r.battery) for r in robots if r not in (low, fine)]
+    churn.step(robots, 1.0)
+    assert low.status == "charging" and fine.status == "idle"
+    for _ in range(100):  # 1,000 s: (100 - 4) / 0.1 = 960 s of charging
+        for robot in robots:
+            robot.advance(10.0, 0.0)
+        churn.step(robots, 10.0)
+    assert (low.status, low.battery) == ("idle", 100.0)
+    assert (fine.status, fine.battery) == ("idle", 25.0)
+    assert [(r.id, r.status, r.battery) for r in robots if r not in (low, fine)] == others
+
+
+def test_a_recharge_threshold_must_be_a_percentage() -> None:
+    from robocloud.sim.fleet import FleetSimulator
+
+    with pytest.raises(InvalidInput, match="recharge_below must be a percentage above 0"):
+        FleetSimulator("cloud-a", cloud_robots("cloud-a", 2), None, recharge_below=0.0)  # type: ignore[arg-type]

@@ -48,14 +48,27 @@ class ChurnRates:
 
 
 class Churn:
-    """Starts background activities; ``enabled=False`` keeps every status as drawn."""
+    """Starts background activities; ``enabled=False`` keeps every status as drawn.
+
+    ``recharge_below``, without churn: an idle robot whose battery is below
+    that many percent goes charging (at ``charge_rate``) until full, as a
+    robot that docks itself would, and does nothing else on its own. Without
+    it a fleet under a long stream of tasks runs dry (measured: 116 grabbers
+    doing thousands of tasks in a throughput benchmark refused more and more
+    of them for a battery of a few percent).
+    """
 
     def __init__(
-        self, rng: np.random.Generator, enabled: bool = True, rates: ChurnRates | None = None
+        self,
+        rng: np.random.Generator,
+        enabled: bool = True,
+        rates: ChurnRates | None = None,
+        recharge_below: float | None = None,
     ) -> None:
         self._rng = rng
         self.enabled = enabled
         self.rates = rates or ChurnRates()
+        self.recharge_below = recharge_below
         self._statuses = [status for status, _ in ACTIVITIES]
         self._weights = np.array([weight for _, weight in ACTIVITIES])
 
@@ -70,15 +83,24 @@ class Churn:
         if not self.enabled:
             return Background(status, math.inf)
         if status == "charging":
-            rate = self.rates.charge_rate
-            return Background(status, (100.0 - robot.battery) / rate, rate)
+            return self._charging(robot)
         remaining = float(self._rng.exponential(self.rates.activity_mean))
         drain = self.rates.busy_drain if status == "busy" else 0.0
         return Background(status, remaining, -drain)
 
+    def _charging(self, robot: SimRobot) -> Background:
+        rate = self.rates.charge_rate
+        return Background("charging", (100.0 - robot.battery) / rate, rate)
+
     def step(self, robots: Sequence[SimRobot], dt: float) -> None:
         """Start activities on idle robots for ``dt`` simulated seconds."""
-        if not self.enabled or dt <= 0.0:
+        if dt <= 0.0:
+            return
+        if not self.enabled:
+            if self.recharge_below is not None:
+                for robot in robots:
+                    if robot.battery < self.recharge_below and robot.available and not robot.dead:
+                        robot.start_background(self._charging(robot))
             return
         idle = [robot for robot in robots if robot.available and not robot.dead]
         if not idle:

@@ -51,6 +51,13 @@ def add_sim_arguments(parser: argparse.ArgumentParser) -> None:
         help="robots change only by commands and faults, never on their own",
     )
     parser.add_argument(
+        "--recharge-below",
+        type=float,
+        metavar="PERCENT",
+        help="with --no-churn: an idle robot whose battery is below PERCENT charges until "
+        "full, as a robot that docks itself would (default: never)",
+    )
+    parser.add_argument(
         "--connect-timeout",
         type=float,
         default=10.0,
@@ -111,6 +118,7 @@ def _run(args: argparse.Namespace, stop: threading.Event) -> int:
         security=overlay_security,
         gateway=args.gateway,
         metrics=args.metrics,
+        recharge_below=args.recharge_below,
     )
     return 0
 

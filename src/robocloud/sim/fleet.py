@@ -79,6 +79,7 @@ class FleetSimulator:
         tick: float = TICK,
         gateway: str | None = None,
         batch_size: int = BATCH_SIZE,
+        recharge_below: float | None = None,
     ) -> None:
         keys.check_chunk(cloud, "cloud")
         if gateway is not None:
@@ -109,7 +110,14 @@ class FleetSimulator:
             if robot.id in self._by_id:
                 raise InvalidInput(f"robot id {robot.id} is used twice.", field="robots")
             self._by_id[robot.id] = robot
-        self._churn = Churn(np.random.default_rng([seed, 2]), enabled=churn)
+        if recharge_below is not None and not 0.0 < recharge_below <= 100.0:
+            raise InvalidInput(
+                f"recharge_below must be a percentage above 0, not {recharge_below}.",
+                field="recharge_below",
+            )
+        self._churn = Churn(
+            np.random.default_rng([seed, 2]), enabled=churn, recharge_below=recharge_below
+        )
         for robot in self._robots:
             self._churn.adopt(robot)
         self._lock = threading.Lock()
@@ -337,6 +345,7 @@ def run_simulator(
     security: SessionSecurity | None = None,
     gateway: str | None = None,
     metrics: tuple[str, int] | None = None,
+    recharge_below: float | None = None,
 ) -> None:
     """Simulate ``n_robots`` robots of ``cloud`` connected to the router at ``connect``.
 
@@ -345,13 +354,21 @@ def run_simulator(
     (``robocloud.federation.security.OverlaySecurity``), as the router asks.
     ``gateway``: publish the states in batches as that gateway (see ``FleetSimulator``).
     ``metrics``: (host, port) to serve Prometheus metrics on (``robocloud.sim.metrics``).
+    ``recharge_below``: idle robots below this battery percentage charge (see ``Churn``).
     """
     robots = cloud_robots(cloud, n_robots, seed)
     stop = stop_event or threading.Event()
     session = open_client(connect, timeout=connect_timeout, security=security)
     try:
         with FleetSimulator(
-            cloud, robots, session, speedup=speedup, seed=seed, churn=churn, gateway=gateway
+            cloud,
+            robots,
+            session,
+            speedup=speedup,
+            seed=seed,
+            churn=churn,
+            gateway=gateway,
+            recharge_below=recharge_below,
         ) as simulator:
             if metrics is not None:
                 host, port = metrics

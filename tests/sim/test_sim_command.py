@@ -118,3 +118,9 @@ def test_arguments_and_errors(capsys: pytest.CaptureFixture[str]) -> None:
     code = main(["--cloud", "cloud-a", "--gateway", "a/b", "--connect", "tcp/127.0.0.1:1"])
     assert code == 2
     assert "error: gateway 'a/b' cannot be used in a Zenoh key" in capsys.readouterr().err
+    for bad in ("0", "nan", "101"):
+        code = main(["--cloud", "cloud-a", "--no-churn", "--recharge-below", bad,
+                     "--connect", "tcp/127.0.0.1:1"])
+        assert code == 2
+        assert "--recharge-below must be a battery percentage above 0 and at most 100" in (
+            capsys.readouterr().err)

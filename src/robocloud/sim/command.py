@@ -17,7 +17,7 @@ import sys
 import threading
 from collections.abc import Sequence
 
-from robocloud.errors import RoboCloudError
+from robocloud.errors import InvalidInput, RoboCloudError
 from robocloud.federation import security
 from robocloud.fleet import keys
 from robocloud.sim.fleet import run_simulator
@@ -100,6 +100,12 @@ def _run(args: argparse.Namespace, stop: threading.Event) -> int:
     overlay_security = security.from_arguments(args)  # bad flags: an error before anything runs
     if args.gateway is not None:
         keys.check_chunk(args.gateway, "gateway")
+    if args.recharge_below is not None and not 0.0 < args.recharge_below <= 100.0:
+        raise InvalidInput(
+            f"--recharge-below must be a battery percentage above 0 and at most 100, "
+            f"not {args.recharge_below:g}.",
+            field="--recharge-below",
+        )
     print(
         f"simulating {args.robots} robots of {args.cloud} at speedup {args.speedup:g},"
         f" connecting to {', '.join(args.connect)}; Ctrl-C stops",

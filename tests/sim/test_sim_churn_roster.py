@@ -95,5 +95,5 @@ def test_without_churn_a_low_idle_robot_recharges_and_nothing_else_moves() -> No
 def test_a_recharge_threshold_must_be_a_percentage() -> None:
     from robocloud.sim.fleet import FleetSimulator
 
-    with pytest.raises(InvalidInput, match="recharge_below must be a percentage above 0"):
+    with pytest.raises(InvalidInput, match=r"a percentage above 0 and at most 100, not 0\.0"):
         FleetSimulator("cloud-a", cloud_robots("cloud-a", 2), None, recharge_below=0.0)  # type: ignore[arg-type]

@@ -112,7 +112,8 @@ class FleetSimulator:
             self._by_id[robot.id] = robot
         if recharge_below is not None and not 0.0 < recharge_below <= 100.0:
             raise InvalidInput(
-                f"recharge_below must be a percentage above 0, not {recharge_below}.",
+                f"recharge_below must be a percentage above 0 and at most 100, "
+                f"not {recharge_below}.",
                 field="recharge_below",
             )
         self._churn = Churn(

@@ -64,8 +64,6 @@ def text_time(value: datetime) -> str:
     return value.astimezone(UTC).strftime("%Y-%m-%d %H:%M:%S.%f")
 
 
-
-
 class SqliteRows:
     """The hot statements of ``SqlRequestStore`` on the open transaction's sqlite3 cursor."""
 

@@ -139,7 +139,8 @@ def _wait(predicate: Any, timeout: float) -> None:
     raise RuntimeError("the system did not come up; see the logs in the bench folder")
 
 
-def _at(text: str) -> float:
+def timestamp_of(text: str) -> float:
+    """An ISO time of the API (``Z`` or an offset) as seconds since the epoch."""
     return datetime.fromisoformat(text.replace("Z", "+00:00")).timestamp()
 
 
@@ -164,7 +165,7 @@ def measure_dispatch(client: httpx.Client, label: str, into: dict[str, Any]) -> 
     assert state is not None
     if state["state"] in ("dispatched", "underway"):
         into["client"].append(elapsed)
-        at = {h["state"]: _at(h["at"]) for h in state["history"] if h["kind"] == "state"}
+        at = {h["state"]: timestamp_of(h["at"]) for h in state["history"] if h["kind"] == "state"}
         into["server"].append((at["dispatched"] - at["received"]) * 1000)
         into["remote"] += any(a["cloud"] != "cloud-a" for a in state["coalition"])
         client.post(f"/v1/requests/{rid}/cancel")

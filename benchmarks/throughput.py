@@ -17,7 +17,6 @@ import json
 import random
 import statistics
 import time
-from datetime import datetime
 from pathlib import Path
 from typing import Any
 
@@ -26,7 +25,7 @@ import numpy as np
 
 from benchmarks.fleet import cpu_seconds
 from benchmarks.report import Column, Goal, SectionReport, Table
-from benchmarks.service import clouds
+from benchmarks.service import clouds, timestamp_of
 
 RATES = (50, 100, 200, 400)
 # Robot seconds per wall second. 116 of the 1,000 robots are idle Tribots (a
@@ -52,10 +51,6 @@ def task(rng: random.Random) -> dict[str, Any]:
         "max_time": 5000.0,
         "priority": "time",
     }
-
-
-def _at(text: str) -> float:
-    return datetime.fromisoformat(text.replace("Z", "+00:00")).timestamp()
 
 
 class Poster:
@@ -190,7 +185,9 @@ async def offer(
         async def fate(rid: str) -> str | None:
             async with gate:
                 body = (await client.get(f"/v1/requests/{rid}")).json()
-            history = {h["state"]: _at(h["at"]) for h in body["history"] if h["kind"] == "state"}
+            history = {
+                h["state"]: timestamp_of(h["at"]) for h in body["history"] if h["kind"] == "state"
+            }
             if "dispatched" in history:
                 latencies.append((history["dispatched"] - sent[rid]) * 1000)
                 return "dispatched"

@@ -10,7 +10,14 @@ from robocloud.selection import covering
 from robocloud.selection.budget import NO_DEADLINE
 from robocloud.selection.choice import choose
 from robocloud.selection.covering import CoverSolver
-from robocloud.selection.exact import _Sweep, cheapest_cover, exact_front, exact_search, prune
+from robocloud.selection.exact import (
+    _Sweep,
+    cheapest_cover,
+    exact_front,
+    exact_search,
+    one_robot_front,
+    prune,
+)
 from robocloud.selection.filtering import filter_robots
 from robocloud.selection.problem import CoalitionProblem
 
@@ -201,3 +208,25 @@ def test_a_one_robot_front_among_many_candidates_is_the_sweeps(seed: int) -> Non
     front = exact_search(problem).front
     assert front == swept_front(problem)
     assert all(c.size == 1 for c in front)
+
+
+@pytest.mark.parametrize("spread", [0.0, 1e-11])  # the very same T, or within the tolerance
+def test_a_one_robot_task_over_many_alike_robots_goes_to_the_sweep(spread: float) -> None:
+    n = 2000
+    order = np.random.default_rng(5).permutation(n)
+    problem = CoalitionProblem(
+        ids=tuple(f"r-{i:05d}" for i in order),
+        time=50.0 + order * spread,
+        cost=np.full(n, 3.0),
+        uses=np.ones((n, 1), dtype=bool),
+        capabilities=("grabber",),
+        need=np.array([1]),
+        max_robots=1,
+        max_cost=10.0,
+        max_time=100.0,
+    )
+    assert one_robot_front(problem, prune(problem)) is None  # past SKYLINE_MAX
+    outcome = exact_search(problem)
+    assert outcome.steps > 1  # the sweep ran
+    assert outcome.front == swept_front(problem)
+    assert [c.robots for c in outcome.front] == [("r-00000",)]

@@ -55,6 +55,9 @@ PRUNE_CLASSES = 256
 # The robot ids the found coalitions may hold in total before the sweep stops
 # as if its budget had run out: memory stays bounded whatever the counts.
 MAX_FOUND_MEMBERS = 2_000_000
+# Robots a one-robot task's skyline may leave for the front's rule (see
+# ``one_robot_front``); past it the sweep is the cheaper way.
+SKYLINE_MAX = 64
 
 
 def _tolerance(value: float) -> float:
@@ -219,20 +222,27 @@ def exact_search(
     if keep.size == 0 or largest < 1:
         return ExactOutcome([], True, EXACT, 0, 0)
     if int(problem.need.sum()) == 1:
-        return ExactOutcome(one_robot_front(problem, keep), True, EXACT, 1, 0)
+        front = one_robot_front(problem, keep)
+        if front is not None:
+            return ExactOutcome(front, True, EXACT, 1, 0)
     solver = CoverSolver(problem, keep, deadline)
     sweep = _Sweep(problem, solver, deadline)
     return sweep.run(largest, keep)
 
 
-def one_robot_front(problem: CoalitionProblem, keep: IntArray) -> list[Coalition]:
-    """The front of a task one robot can do (one capability, needed once).
+def one_robot_front(problem: CoalitionProblem, keep: IntArray) -> list[Coalition] | None:
+    """The front of a task one robot can do (one capability, needed once); None if not cheap.
 
     Every Pareto-optimal coalition is then one robot: a second one only adds
     time, cost and one to N. So the front is the (T, C) skyline of the single
     robots that bring the capability within max_cost, which is what the
     sweep would find, without its covering machinery (about 2 ms for 130
     candidates, measured; this takes a few hundredths of that).
+
+    The skyline's last step is the front's own rule, one robot at a time.
+    When more than ``SKYLINE_MAX`` robots are left for it (robots alike in
+    T and C, within the tolerance), the sweep is cheaper, and None says so:
+    10,000 such robots took 0.86 s here and 0.03 s in the sweep.
     """
     bring = problem.uses[keep][:, problem.need > 0].any(axis=1)
     robots = keep[bring & (problem.cost[keep] <= problem.max_cost + _tolerance(problem.max_cost))]
@@ -245,6 +255,8 @@ def one_robot_front(problem: CoalitionProblem, keep: IntArray) -> list[Coalition
     cheapest_before = np.minimum.accumulate(cost)
     slack = np.maximum(ABS_TOL, REL_TOL * np.abs(cheapest_before))
     left = order[cost <= cheapest_before + slack]
+    if left.size > SKYLINE_MAX:
+        return None
     return pareto_front(problem.coalition([i]) for i in left)
 
 

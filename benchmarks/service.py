@@ -27,7 +27,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
@@ -81,11 +81,13 @@ def clouds(
     speedup: float = 1.0,
     churn: bool = False,
     recharge_below: float | None = None,
+    iaas_args: Sequence[str] = (),
 ) -> Iterator[Running]:
     """Start len(counts) clouds (IaaS + simulator), robots ``speedup`` times the clock.
 
     ``recharge_below``: idle robots below that battery charge (the simulator's
     ``--recharge-below``), so a long stream of tasks does not run the fleet dry.
+    ``iaas_args``: more flags for each ``robocloud iaas``.
     """
     recharge = [] if recharge_below is None else ["--recharge-below", str(recharge_below)]
     key = secrets.token_urlsafe(12)
@@ -105,7 +107,7 @@ def clouds(
                 [*python, "iaas", "--cloud", name, "--listen", f"127.0.0.1:{http}",
                  "--zenoh", endpoint, "--store", f"sqlite:///{workdir / f'{name}.db'}",
                  "--time-scale", str(speedup), "--log-level", "warning",
-                 *[a for e in endpoints for a in ("--peer", e)]],
+                 *[a for e in endpoints for a in ("--peer", e)], *iaas_args],
                 stdout=log, stderr=subprocess.STDOUT, env=env))
             iaas.append(processes[-1])
             urls.append(f"http://127.0.0.1:{http}")

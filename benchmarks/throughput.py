@@ -40,6 +40,9 @@ SPEEDUP = 10_000.0
 # battery of a few percent and selected again; none with it.
 RECHARGE_BELOW = 20.0
 FINAL = {"completed", "rejected", "canceled", "failed"}
+# The IaaS's --busy-after by default, and a shorter one run at 200/s besides.
+DEFAULT_BUSY_AFTER = 0.5
+SHORT_BUSY_AFTER = 0.1
 
 
 def task(rng: random.Random) -> dict[str, Any]:
@@ -213,41 +216,53 @@ def _pct(xs: list[float], q: float) -> float:
     return float(np.percentile(xs, q)) if xs else float("nan")
 
 
+def _row(got: dict[str, Any], busy_after: float) -> dict[str, Any]:
+    decided = got["states"].get("dispatched", 0) + got["states"].get("rejected", 0)
+    return {
+        "rate": got["rate"],
+        "busy_after": busy_after,
+        "sent": got["sent"],
+        "accepted": got["accepted"],
+        "held": got["accepted"] / got["window"],
+        "dispatched": got["states"].get("dispatched", 0),
+        "rejected": got["states"].get("rejected", 0),
+        "failed": got["states"].get("failed", 0),
+        "decided": decided,
+        "unsettled": got["unsettled"],
+        "p50": _pct(got["latencies"], 50),
+        "p99": _pct(got["latencies"], 99),
+        "post_p99": _pct(got["post_ms"], 99),
+        "cpu_ms": 1000 * got["iaas_cpu"] / max(1, got["accepted"]),
+        "sender_ms": 1000 * got["sender_cpu"] / max(1, got["sent"]),
+        "refused": ", ".join(
+            f"{c}: {n}" for c, n in sorted(got["refused"].items(), key=str)
+        ) or "none",
+    }
+
+
 def run(quick: bool, out: Path) -> SectionReport:
     workdir = out / "throughput-run"
     workdir.mkdir(parents=True, exist_ok=True)
     rates = RATES[:2] if quick else RATES
     seconds = 3.0 if quick else 10.0
     rows: list[dict[str, Any]] = []
-    with clouds(workdir, [1000], speedup=SPEEDUP, churn=False,
-                recharge_below=RECHARGE_BELOW) as running:
-        for k, rate in enumerate(rates):
-            got = asyncio.run(offer(running.urls[0], running.key, rate, seconds, seed=k,
-                                    iaas_pid=running.iaas[0].pid))
-            decided = got["states"].get("dispatched", 0) + got["states"].get("rejected", 0)
-            rows.append({
-                "rate": rate,
-                "sent": got["sent"],
-                "accepted": got["accepted"],
-                "held": got["accepted"] / got["window"],
-                "dispatched": got["states"].get("dispatched", 0),
-                "rejected": got["states"].get("rejected", 0),
-                "failed": got["states"].get("failed", 0),
-                "decided": decided,
-                "unsettled": got["unsettled"],
-                "p50": _pct(got["latencies"], 50),
-                "p99": _pct(got["latencies"], 99),
-                "post_p99": _pct(got["post_ms"], 99),
-                "cpu_ms": 1000 * got["iaas_cpu"] / max(1, got["accepted"]),
-                "sender_ms": 1000 * got["sender_cpu"] / max(1, got["sent"]),
-                "refused": ", ".join(
-                    f"{c}: {n}" for c, n in sorted(got["refused"].items(), key=str)
-                ) or "none",
-            })
-            time.sleep(2.0)  # robots back, queues empty
+    # The IaaS as it starts by default (busy after 0.5 s), then, at 200/s, with
+    # the shorter wait that bounds POST-to-dispatched near the goal.
+    for busy_after, its_rates in ((DEFAULT_BUSY_AFTER, rates), (SHORT_BUSY_AFTER, (200,))):
+        if quick and busy_after != DEFAULT_BUSY_AFTER:
+            continue
+        with clouds(workdir, [1000], speedup=SPEEDUP, churn=False,
+                    recharge_below=RECHARGE_BELOW,
+                    iaas_args=["--busy-after", str(busy_after)]) as running:
+            for k, rate in enumerate(its_rates):
+                got = asyncio.run(offer(running.urls[0], running.key, rate, seconds, seed=k,
+                                        iaas_pid=running.iaas[0].pid))
+                rows.append(_row(got, busy_after))
+                time.sleep(2.0)  # robots back, queues empty
     table = Table(
         title=f"Open-loop load on one cloud (1,000 robots), {seconds:g} s per rate",
-        columns=[Column("rate", "offered/s"), Column("held", "accepted/s", "{:.0f}"),
+        columns=[Column("rate", "offered/s"), Column("busy_after", "--busy-after s", "{:g}"),
+                 Column("held", "accepted/s", "{:.0f}"),
                  Column("dispatched", "dispatched"), Column("rejected", "rejected"),
                  Column("failed", "failed"),
                  Column("p50", "POST-to-dispatched p50 ms", "{:.0f}"),
@@ -259,12 +274,15 @@ def run(quick: bool, out: Path) -> SectionReport:
         rows=rows,
     )
     goals = []
-    at200 = next((r for r in rows if r["rate"] == 200), None)
-    if at200 is not None:
-        held = at200["held"] >= 0.95 * 200 and at200["unsettled"] == 0
-        goals.append(Goal("200 requests/s held, POST-to-dispatched p99 < 250 ms",
-                          f"{at200['held']:.0f}/s accepted, p99 {at200['p99']:.0f} ms",
-                          held and at200["p99"] < 250, f"{250 - at200['p99']:+.0f} ms"))
+    for row in rows:
+        if row["rate"] != 200:
+            continue
+        held = row["held"] >= 0.95 * 200 and row["unsettled"] == 0
+        goals.append(Goal(
+            f"200 requests/s held, POST-to-dispatched p99 < 250 ms "
+            f"(--busy-after {row['busy_after']:g})",
+            f"{row['held']:.0f}/s accepted, p99 {row['p99']:.0f} ms",
+            held and row["p99"] < 250, f"{250 - row['p99']:+.0f} ms"))
     notes = [
         "Each request needs one robot with a grabber (at most 2 robots) near a random "
         "place; robots run 10,000 times faster than the clock, so a robot is free again "
@@ -283,6 +301,12 @@ def run(quick: bool, out: Path) -> SectionReport:
         "workers and the simulator. IaaS CPU is the IaaS process's user and system time "
         "from the first POST until no request is undecided, per accepted request; the "
         "sender's is the load generator's own while it sends, per request sent.",
+        "Load shedding: the IaaS refuses a new request (503, Retry-After: 1) while 8 or "
+        "more wait for their robots and the oldest has waited --busy-after seconds "
+        f"(default {DEFAULT_BUSY_AFTER:g}); the refused ones are the 503s of the last "
+        "column, and accepted/s counts only the others. Before it (measured at 200/s on "
+        "the same machine): 165/s accepted, of which 1,510 of 2,000 were rejected seconds "
+        "later for want of a free grabber, median 2.9 s, p99 8.9 s.",
         f"Median of POST answer times over all rates: "
         f"{statistics.median([r['post_p99'] for r in rows]):.0f} ms (p99 per rate above).",
     ]

@@ -9,7 +9,8 @@
     ├── Unauthorized                a missing or wrong API key                 (HTTP 401)
     ├── Conflict                    the action does not fit the current state  (HTTP 409)
     └── Unavailable                 a part it needs is down; try again later   (HTTP 503)
-        └── StoreUnavailable        the database (robocloud.storage)
+        ├── StoreUnavailable        the database (robocloud.storage)
+        └── Busy                    the cloud has more requests waiting than it can decide in time
 
 Each error carries its context (the field, the id) besides its sentence.
 HTTP status codes are mapped in ``robocloud.iaas`` and exit codes in
@@ -62,6 +63,13 @@ class Unavailable(RoboCloudError):
     def __init__(self, message: str, retry_after: float = 5.0) -> None:
         super().__init__(message)
         self.retry_after = retry_after
+
+
+class Busy(Unavailable):
+    """The IaaS refuses a new request while it is behind with the ones it has (load shedding)."""
+
+    def __init__(self, message: str, retry_after: float = 1.0) -> None:
+        super().__init__(message, retry_after)
 
 
 def field_path(location: Iterable[int | str], prefix: str = "") -> str:

@@ -20,6 +20,11 @@ API_KEY = "test-key"
 HEADERS = {"Authorization": f"Bearer {API_KEY}"}
 
 
+# Flags that turn a cloud's load shedding off (a 503 for new requests when too
+# many wait): for tests that send bursts to check something else.
+NO_SHEDDING = ["--busy-after", "3600", "--max-waiting", "1000000"]
+
+
 def free_port() -> int:
     with socket.socket() as sock:
         sock.bind(("127.0.0.1", 0))

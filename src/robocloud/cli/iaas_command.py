@@ -134,6 +134,22 @@ def add_iaas_arguments(parser: argparse.ArgumentParser) -> None:
         "are busy); 0 runs them in a thread of the IaaS (default 2)",
     )
     parser.add_argument(
+        "--busy-after",
+        type=float,
+        default=0.5,
+        metavar="SECONDS",
+        help="load shedding: new requests are refused (503, Retry-After) while 8 or more "
+        "wait for their robots and the oldest has waited this long (default 0.5)",
+    )
+    parser.add_argument(
+        "--max-waiting",
+        type=int,
+        default=1000,
+        metavar="N",
+        help="new requests are refused (503) while this many wait for their robots "
+        "(default 1000)",
+    )
+    parser.add_argument(
         "--time-scale",
         type=float,
         default=1.0,
@@ -230,10 +246,15 @@ def iaas_settings(args: argparse.Namespace) -> Settings:
         "--forget-after",
         "--time-scale",
         "--selection-budget",
+        "--busy-after",
     ):
         value = getattr(args, flag.removeprefix("--").replace("-", "_"))
         if not value > 0:  # also refuses nan
             raise InvalidInput(f"{flag} must be more than 0, not {value}.", flag)
+    if not 1 <= args.max_waiting <= 1_000_000:
+        raise InvalidInput(
+            f"--max-waiting must be 1 to 1000000, not {args.max_waiting}.", "--max-waiting"
+        )
     for flag in ("--lease-max", "--origin-deadline"):
         value = getattr(args, flag.removeprefix("--").replace("-", "_"))
         if not 0 < value <= 86_400:
@@ -267,6 +288,8 @@ def iaas_settings(args: argparse.Namespace) -> Settings:
         origin_deadline=args.origin_deadline,
         selection_budget=args.selection_budget,
         selection_workers=args.selection_workers,
+        busy_after=args.busy_after,
+        max_waiting=args.max_waiting,
         overlay_security=overlay_security,
     )
     return settings

@@ -43,6 +43,7 @@ from robocloud.federation.messages import CloudInfo
 from robocloud.federation.overlay import ZenohOverlay
 from robocloud.federation.view import FederationView
 from robocloud.fleet.link import RobotLink
+from robocloud.iaas.actor import Selector
 from robocloud.iaas.config import Settings
 from robocloud.iaas.docs_ui import install_docs
 from robocloud.iaas.home import Home, reconcile_period
@@ -100,7 +101,8 @@ _ANSWERS = {
     409: "the request's state does not allow it",
     413: "the body is too large",
     422: "invalid input (the sentence names the field)",
-    503: "the store is unavailable; try again after Retry-After seconds",
+    503: "the store is unavailable, or (a new request) the cloud is busy; try again after "
+    "Retry-After seconds",
 }
 
 
@@ -110,8 +112,12 @@ def answers(*codes: int) -> dict[int | str, dict[str, Any]]:
 
 
 def create_app(
-    settings: Settings, store: RequestStore | None = None, link: RobotLink | None = None
+    settings: Settings,
+    store: RequestStore | None = None,
+    link: RobotLink | None = None,
+    selector: Selector | None = None,
 ) -> FastAPI:
+    """The IaaS; ``store``, ``link`` and ``selector`` replace the real ones (for tests)."""
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         async with contextlib.AsyncExitStack() as stack:
@@ -160,7 +166,9 @@ def create_app(
                 settings.cloud, the_store, the_link, overlay, settings.gather_timeout
             )
             home.lenders = view.lenders
-            service = RequestService(settings, the_store, view, metrics=metrics)
+            service = RequestService(
+                settings, the_store, view, metrics=metrics, selector=selector
+            )
             metrics.observe_states(settings.cloud, service.robot_statuses, service.active_states)
             service.home_info = home.info
             service.lent_for = home.lent_for
@@ -189,12 +197,14 @@ def create_app(
     app.state.settings = settings
     metrics = app.state.metrics = IaasMetrics()
     _install_error_handlers(app)
-    app.add_middleware(Gate, keys=settings.api_keys, limit=settings.max_body_bytes)
     # JSON answers of 1 KiB and more, gzipped for clients that accept it (a page
     # of 1,000 robots: 284 kB -> 23 kB). Starlette passes event streams
     # (text/event-stream) through untouched, event by event. Level 5: most of
     # level 9's gain for a third of its CPU.
     app.add_middleware(GZipMiddleware, minimum_size=1024, compresslevel=5)
+    # The Gate last, so outermost: what it refuses (401, 413, a busy 503) is
+    # answered before any other middleware runs.
+    app.add_middleware(Gate, keys=settings.api_keys, limit=settings.max_body_bytes)
     routes = _routes()
     app.include_router(routes)
     app.openapi = lambda: _openapi(app)  # type: ignore[method-assign]
@@ -663,6 +673,15 @@ class Gate:
             if repeated is not None:
                 await _error(repeated)(scope, receive, send)
                 return
+            if scope["method"] == "POST" and scope["path"] == "/v1/requests":
+                # A busy cloud refuses before the body is read: a refusal costs
+                # little of the CPU it is short of.
+                service: RequestService | None = getattr(scope["app"].state, "service", None)
+                busy = service.busy() if service is not None else None
+                if service is not None and busy is not None:
+                    service.metrics.refused.inc()
+                    await _error(busy)(scope, receive, send)
+                    return
         length = headers.get("content-length")
         if length is not None and length.isdigit() and int(length) > self.limit:
             refusal = PayloadTooLarge(

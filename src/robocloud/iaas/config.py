@@ -59,6 +59,11 @@ class Settings:
     # ids robots come and go with); at most max_fleet robots are followed.
     forget_after: float = 600.0
     max_fleet: int = 100_000
+    # Load shedding (RequestService._admit): new requests are refused (503)
+    # while this many wait for their robots, or while 8 or more wait and the
+    # oldest has waited busy_after seconds.
+    max_waiting: int = 1000
+    busy_after: float = 0.5
     cancel_timeout: float = 15.0  # seconds a cancel waits for its state to be stored
     # Selections run in worker processes (robocloud.iaas.selector); 0: in a
     # thread of the IaaS (for fast tests). The budget is the time a selection

@@ -84,6 +84,12 @@ class IaasMetrics:
             buckets=FAST_BUCKETS,
             registry=r,
         )
+        self.refused = Counter(
+            "robocloud_requests_refused_busy",
+            "New requests refused with 503 because the cloud was busy (load shedding: "
+            "too many requests waiting for their robots, or waiting too long).",
+            registry=r,
+        )
         self.store_errors = Counter(
             "robocloud_store_errors",
             "Store calls that found the store unavailable, by the store's method.",

@@ -292,6 +292,70 @@ def test_the_process_says_one_sentence_and_exits(store: str, code: int, words: s
     assert not Path("/nonexistent-robocloud").exists()
 
 
+def descendants(pid: int) -> set[int]:
+    """The processes under ``pid`` (children, their children, ...), from /proc."""
+    children: dict[int, list[int]] = {}
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                with open(f"/proc/{entry}/stat") as stat:
+                    parent = int(stat.read().rsplit(")", 1)[1].split()[1])
+            except (OSError, IndexError, ValueError):
+                continue  # ended meanwhile
+            children.setdefault(parent, []).append(int(entry))
+    found: set[int] = set()
+    todo = [pid]
+    while todo:
+        for child in children.get(todo.pop(), []):
+            found.add(child)
+            todo.append(child)
+    return found
+
+
+def wait_for_selection_workers(pid: int) -> set[int]:
+    """The IaaS's helper processes once its two selection workers run (asserted)."""
+    deadline = time.monotonic() + 30
+    while True:
+        helpers = descendants(pid)
+        workers = [p for p in helpers if b"forkserver" in _cmdline(p)]
+        if len(workers) >= 3:  # the fork server and the two workers forked from it
+            return helpers
+        assert time.monotonic() < deadline, f"no selection workers under {pid}: {helpers}"
+        time.sleep(0.1)
+
+
+def _cmdline(pid: int) -> bytes:
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as cmdline:
+            return cmdline.read()
+    except OSError:
+        return b""
+
+
+def assert_all_ended(pids: set[int], within: float = 10.0) -> None:
+    deadline = time.monotonic() + within
+    alive = pids
+    while alive and time.monotonic() < deadline:
+        alive = {p for p in alive if _cmdline(p)}  # a zombie has no command line either
+        time.sleep(0.1)
+    assert not alive, f"processes left behind: {[_cmdline(p)[:120] for p in alive]}"
+
+
+@pytest.mark.slow
+def test_a_killed_iaas_leaves_no_selection_process_behind(tmp_path: Path) -> None:
+    """SIGKILL gives the IaaS no chance to close its pool: its helpers end on their own."""
+    port = free_port()
+    argv = iaas(store=f"sqlite:///{tmp_path / 'cloud.db'}")
+    argv[argv.index("--listen") + 1] = f"127.0.0.1:{port}"
+    process = robocloud(*argv, cwd=tmp_path)
+    try:
+        helpers = wait_for_selection_workers(process.pid)
+    finally:
+        process.kill()
+        process.communicate(timeout=30)
+    assert_all_ended(helpers)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("stop", [signal.SIGTERM, signal.SIGINT])
 def test_the_iaas_serves_and_stops_cleanly_on_a_signal(tmp_path: Path, stop: int) -> None:
@@ -310,6 +374,7 @@ def test_the_iaas_serves_and_stops_cleanly_on_a_signal(tmp_path: Path, stop: int
                 assert time.monotonic() < deadline, "the IaaS did not answer"
                 time.sleep(0.1)
         assert health["cloud"] == "cloud-t" and health["store"] == "sqlite"
+        helpers = wait_for_selection_workers(process.pid)
         process.send_signal(stop)
         _, err = process.communicate(timeout=30)
     finally:
@@ -317,6 +382,7 @@ def test_the_iaas_serves_and_stops_cleanly_on_a_signal(tmp_path: Path, stop: int
             process.kill()
             process.wait()
     assert process.returncode == 0, err
+    assert_all_ended(helpers)
     assert "Traceback" not in err
     assert f"serving http://127.0.0.1:{port}/v1" in err
     assert (tmp_path / "cloud.db").is_file()

@@ -2,7 +2,8 @@
 
 The selection pipeline is pure CPU work; on the event loop's process it would
 hold the GIL and stall every other request. Here it runs in a small pool of
-worker processes (``spawn``: they share nothing with the IaaS's threads):
+worker processes (forked from a fork server, ``worker_context``: they share nothing with
+the IaaS's threads):
 
 - the IaaS filters its robots first (Algorithm 2, a vectorised mask over the
   link's columns, ``robocloud.selection.columns``) and sends the candidates'

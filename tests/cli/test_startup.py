@@ -387,3 +387,15 @@ def test_the_iaas_serves_and_stops_cleanly_on_a_signal(tmp_path: Path, stop: int
     assert f"serving http://127.0.0.1:{port}/v1" in err
     assert (tmp_path / "cloud.db").is_file()
     assert not math.isnan(health["time_scale"])
+
+
+def test_load_shedding_flags_reach_the_settings() -> None:
+    from robocloud.cli.iaas_command import iaas_settings
+    from robocloud.cli.main import build_parser
+
+    default = iaas_settings(build_parser().parse_args(iaas()))
+    assert (default.busy_after, default.max_waiting) == (0.5, 1000)
+    given = iaas_settings(
+        build_parser().parse_args(iaas("--busy-after", "0.1", "--max-waiting", "40"))
+    )
+    assert (given.busy_after, given.max_waiting) == (0.1, 40)

@@ -286,9 +286,10 @@ class RequestService:
         if waiting < BUSY_MIN and waiting < self.settings.max_waiting:
             return None
         if waiting >= self.settings.max_waiting:
+            are = "request is" if waiting == 1 else "requests are"
             return Busy(
-                f"this cloud is busy: {waiting} requests are waiting for their robots, its "
-                "limit; try again after Retry-After seconds."
+                f"this cloud is busy: {waiting} {are} waiting for their robots, its limit; "
+                "try again after Retry-After seconds."
             )
         now = self._shell.mono() if now is None else now
         waited = now - next(iter(self._waiting.values()))

@@ -66,7 +66,13 @@ class Unavailable(RoboCloudError):
 
 
 class Busy(Unavailable):
-    """The IaaS refuses a new request while it is behind with the ones it has (load shedding)."""
+    """The IaaS refuses a new request while it is behind with the ones it has (load shedding).
+
+    Its 503 carries ``HEADER: 1``: nothing was stored, so a client may send the
+    same request to another cloud at once (another 503 may have stored it).
+    """
+
+    HEADER = "X-Robocloud-Busy"
 
     def __init__(self, message: str, retry_after: float = 1.0) -> None:
         super().__init__(message, retry_after)

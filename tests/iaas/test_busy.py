@@ -115,6 +115,7 @@ def test_a_cloud_with_max_waiting_requests_refuses_the_next_and_stores_nothing(
     refused = client.post("/v1/requests", json=TASK, headers=key)
     assert refused.status_code == 503, refused.text
     assert refused.headers["Retry-After"] == "1"
+    assert refused.headers["X-Robocloud-Busy"] == "1"  # nothing stored: another cloud may take it
     assert refused.json()["detail"] == (
         "this cloud is busy: 3 requests are waiting for their robots, its limit; "
         "try again after Retry-After seconds."

@@ -290,6 +290,56 @@ def test_a_send_refused_before_it_left_goes_to_the_next_iaas(
     assert client.get(f"/api/requests/{request_id}").json()["held_by"] == "cloud-b"
 
 
+BUSY = "this cloud is busy: 8 requests are waiting for their robots, the oldest for 0.61 s " \
+       "(over 0.5 s); try again after Retry-After seconds."
+
+
+def busy(fake: FakeIaas) -> None:
+    """``fake`` refuses new requests as a busy IaaS does: 503, Retry-After, X-Robocloud-Busy."""
+    import httpx
+
+    fake.answer_only = "POST"
+    fake.answer = lambda _: httpx.Response(
+        503, json={"detail": BUSY}, headers={"Retry-After": "1", "X-Robocloud-Busy": "1"})
+
+
+def test_a_busy_iaas_passes_the_send_to_the_next(
+        client: TestClient, cloud_a: FakeIaas, cloud_b: FakeIaas) -> None:
+    busy(cloud_a)
+    answer = client.post("/api/requests", json=TASK, headers={"Idempotency-Key": "k-9"})
+    assert answer.status_code == 202, answer.text
+    assert answer.json()["held_by"] == "cloud-b"
+    assert not cloud_a.requests and len(cloud_b.requests) == 1
+    # Busy is not down: cloud-a is still healthy, and the key went to cloud-b alone.
+    assert client.get("/api/health").json()["endpoints"][0]["ok"] is True
+    again = client.post("/api/requests", json=TASK, headers={"Idempotency-Key": "k-9"})
+    assert again.json()["id"] == answer.json()["id"]
+
+
+def test_when_every_iaas_is_busy_the_page_is_told_nothing_was_sent(
+        client: TestClient, cloud_a: FakeIaas, cloud_b: FakeIaas) -> None:
+    busy(cloud_a)
+    busy(cloud_b)
+    answer = client.post("/api/requests", json=TASK, headers={"Idempotency-Key": "k-10"})
+    assert answer.status_code == 503
+    assert answer.json() == {"detail": BUSY, "delivery": "none"}
+    assert not cloud_a.requests and not cloud_b.requests
+
+
+def test_a_busy_answer_to_a_key_that_may_be_there_stays_unknown(
+        client: TestClient, cloud_a: FakeIaas, cloud_b: FakeIaas) -> None:
+    cloud_a.hang = True  # the first send may have reached cloud-a
+    first = client.post("/api/requests", json=TASK, headers={"Idempotency-Key": "k-11"})
+    assert first.json()["delivery"] == "unknown"
+    cloud_a.hang = False
+    busy(cloud_a)
+    # cloud-a refuses before reading the key: the request may be there, so no other IaaS.
+    again = client.post("/api/requests", json=TASK, headers={"Idempotency-Key": "k-11"})
+    assert again.status_code == 503
+    assert again.json() == {"detail": BUSY, "delivery": "unknown"}
+    assert not cloud_b.requests
+
+
 def test_an_iaas_failing_inside_may_hold_the_request(client: TestClient,
                                                      cloud_a: FakeIaas) -> None:
     import httpx

@@ -30,6 +30,7 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 from robocloud.domain import RequestState
 from robocloud.domain.robot import NAME_PATTERN, Name, RobotStatus
 from robocloud.errors import (
+    Busy,
     Conflict,
     InvalidInput,
     NotFound,
@@ -748,4 +749,6 @@ def _error(error: RoboCloudError) -> JSONResponse:
         headers["WWW-Authenticate"] = "Bearer"
     if isinstance(error, Unavailable):
         headers["Retry-After"] = str(max(1, round(error.retry_after)))
+    if isinstance(error, Busy):
+        headers[Busy.HEADER] = "1"  # nothing stored: another cloud may take it at once
     return JSONResponse({"detail": error.message}, status_code=status_of(error), headers=headers)

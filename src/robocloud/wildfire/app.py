@@ -25,7 +25,9 @@ through :class:`~robocloud.wildfire.iaas_pool.IaasPool`, and errors become
 
 A send that may have reached an IaaS without an answer coming back is 504 (or
 502) with ``"delivery": "unknown"``: the page then says the request is not
-confirmed yet and sends again with the same key until it knows.
+confirmed yet and sends again with the same key until it knows. An IaaS too
+busy to take it (503 with ``X-Robocloud-Busy``) stored nothing: the send goes to
+the next IaaS, and when all are busy it is 503 with ``"delivery": "none"``.
 """
 
 from __future__ import annotations
@@ -53,7 +55,7 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from robocloud.wildfire.config import WildfireSettings
 from robocloud.wildfire.feed import LiveFeed, TooManyPages
-from robocloud.wildfire.iaas_client import IaasError, IaasUnreachable
+from robocloud.wildfire.iaas_client import IaasBusy, IaasError, IaasUnreachable
 from robocloud.wildfire.iaas_pool import Endpoint, IaasPool
 from robocloud.wildfire.live import LiveModel, request_summary
 from robocloud.wildfire.metrics import WildfireMetrics
@@ -319,6 +321,8 @@ def _install_error_handlers(app: FastAPI) -> None:
         if isinstance(error, IaasUnreachable):
             # Whether the IaaS may have acted: the page's truthful "not confirmed yet".
             body["delivery"] = "unknown" if error.maybe_delivered else "none"
+        elif isinstance(error, IaasBusy):
+            body["delivery"] = "none"  # every IaaS was too busy and stored nothing
         elif error.status >= 500:
             body["delivery"] = "unknown"
         return JSONResponse(body, status_code=error.status)

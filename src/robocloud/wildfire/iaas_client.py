@@ -20,6 +20,8 @@ from typing import Any
 
 import httpx
 
+from robocloud.errors import Busy
+
 # Request ids travel inside a path: anything else could walk to another route.
 REQUEST_ID = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]{0,127}")
 LIST_PARAMETERS = ("state", "limit", "before")
@@ -52,6 +54,13 @@ class IaasUnreachable(IaasError):
         super().__init__(504 if timed_out else 502, f"the IaaS at {url} {cause}.")
         self.url = url
         self.maybe_delivered = maybe_delivered
+
+
+class IaasBusy(IaasError):
+    """The IaaS was too busy to take a new request (503 with ``Busy.HEADER``): nothing stored."""
+
+    def __init__(self, detail: str) -> None:
+        super().__init__(503, detail)
 
 
 class IaasClient:
@@ -145,7 +154,8 @@ class IaasClient:
                     raise
             return await self._exchange_once(method, path, timeout=timeout, **kwargs)
         except IaasError as error:
-            if isinstance(error, IaasUnreachable) or error.status >= 500:
+            busy = isinstance(error, IaasBusy)  # it answers: it is not failing
+            if isinstance(error, IaasUnreachable) or (error.status >= 500 and not busy):
                 self.failures += 1
             raise
 
@@ -179,8 +189,10 @@ class IaasClient:
         if content is None:
             raise _not_json(self.base_url, f"its answer is over {MAX_ANSWER_BYTES} bytes")
         if answer.status_code >= 400:
-            raise IaasError(answer.status_code, _sentence(answer.status_code,
-                                                          answer.reason_phrase, content))
+            sentence = _sentence(answer.status_code, answer.reason_phrase, content)
+            if answer.status_code == 503 and answer.headers.get(Busy.HEADER) == "1":
+                raise IaasBusy(sentence)
+            raise IaasError(answer.status_code, sentence)
         try:
             return json.loads(content), following
         except ValueError:

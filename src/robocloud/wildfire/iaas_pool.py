@@ -31,7 +31,13 @@ from typing import Any
 import httpx
 
 from robocloud.wildfire.config import WildfireSettings
-from robocloud.wildfire.iaas_client import REQUEST_ID, IaasClient, IaasError, IaasUnreachable
+from robocloud.wildfire.iaas_client import (
+    REQUEST_ID,
+    IaasBusy,
+    IaasClient,
+    IaasError,
+    IaasUnreachable,
+)
 
 MAX_REMEMBERED = 20_000
 MAX_PINNED_KEYS = 10_000
@@ -152,7 +158,7 @@ class IaasPool:
             candidates = [self.endpoints[pin.endpoint]]
         else:
             candidates = self.ordered()
-        last: IaasUnreachable | None = None
+        last: IaasError | None = None
         for endpoint in candidates:
             try:
                 record = await endpoint.client.create_request(body, key)
@@ -161,6 +167,13 @@ class IaasPool:
                 if error.maybe_delivered:
                     self._pin(key, endpoint, maybe_delivered=True)
                     raise
+                last = error
+                continue
+            except IaasBusy as error:
+                if pin is not None and pin.maybe_delivered:
+                    # It refused before reading the key: an earlier send may be there.
+                    raise IaasError(error.status, error.detail) from None
+                # Too busy to take it, and nothing stored: the next IaaS may take it.
                 last = error
                 continue
             except IaasError as error:

@@ -164,7 +164,10 @@ def test_a_request_without_a_key_is_401_even_when_busy(
     assert client.post("/v1/requests", json=TASK, headers=A).status_code == 202
     busy = client.post("/v1/requests", json=TASK, headers=A)
     assert busy.status_code == 503
-    assert busy.json()["detail"].startswith("this cloud is busy: 1 request is waiting for")
+    assert busy.json()["detail"] == (
+        "this cloud is busy: 1 request is waiting for its robots, its limit; try again after "
+        "Retry-After seconds."
+    )
     assert client.post("/v1/requests", json=TASK).status_code == 401
     # Reads and cancels are never shed.
     assert client.get("/v1/requests", headers=A).status_code == 200

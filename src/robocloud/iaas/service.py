@@ -286,9 +286,9 @@ class RequestService:
         if waiting < BUSY_MIN and waiting < self.settings.max_waiting:
             return None
         if waiting >= self.settings.max_waiting:
-            are = "request is" if waiting == 1 else "requests are"
+            are = "request is waiting for its" if waiting == 1 else "requests are waiting for their"
             return Busy(
-                f"this cloud is busy: {waiting} {are} waiting for their robots, its limit; "
+                f"this cloud is busy: {waiting} {are} robots, its limit; "
                 "try again after Retry-After seconds."
             )
         now = self._shell.mono() if now is None else now

@@ -10,6 +10,7 @@ store anything, or spend an Idempotency-Key.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -66,23 +67,25 @@ class Held:
 
 @pytest.fixture
 def cloud() -> Iterator[Callable[..., tuple[TestClient, Held]]]:
-    opened: list[TestClient] = []
+    with contextlib.ExitStack() as opened:
 
-    def open_cloud(**settings: Any) -> tuple[TestClient, Held]:
-        held = Held()
-        app = create_app(
-            Settings(cloud="cloud-a", api_keys={"key-a": "app-a"}, **settings),
-            store=MemoryRequestStore(),
-            link=MemoryRobotLink("cloud-a", [robot(i) for i in range(20)], offline_after=3600),
-            selector=held,
-        )
-        client = TestClient(app).__enter__()
-        opened.append(client)
-        return client, held
+        def open_cloud(**settings: Any) -> tuple[TestClient, Held]:
+            held = Held()
+            app = create_app(
+                Settings(cloud="cloud-a", api_keys={"key-a": "app-a"}, **settings),
+                store=MemoryRequestStore(),
+                link=MemoryRobotLink(
+                    "cloud-a", [robot(i) for i in range(20)], offline_after=3600
+                ),
+                selector=held,
+            )
+            client = opened.enter_context(TestClient(app))
+            # The gate opens before the client closes (last in, first out): a test
+            # that failed before opening it leaves no selection waiting out its 30 s.
+            opened.callback(held.gate.set)
+            return client, held
 
-    yield open_cloud
-    for client in opened:
-        client.__exit__(None, None, None)
+        yield open_cloud
 
 
 SENT = {"dispatched", "underway", "completed"}

@@ -678,9 +678,10 @@ class Gate:
                 # A busy cloud refuses before the body is read: a refusal costs
                 # little of the CPU it is short of.
                 service: RequestService | None = getattr(scope["app"].state, "service", None)
-                busy = service.busy() if service is not None else None
-                if service is not None and busy is not None:
-                    service.metrics.refused.inc()
+                try:
+                    if service is not None:
+                        service.admit()
+                except Busy as busy:
                     await _error(busy)(scope, receive, send)
                     return
         length = headers.get("content-length")

@@ -59,7 +59,7 @@ class Settings:
     # ids robots come and go with); at most max_fleet robots are followed.
     forget_after: float = 600.0
     max_fleet: int = 100_000
-    # Load shedding (RequestService._admit): new requests are refused (503)
+    # Load shedding (RequestService.busy): new requests are refused (503)
     # while this many wait for their robots, or while 8 or more wait and the
     # oldest has waited busy_after seconds.
     max_waiting: int = 1000

@@ -247,10 +247,7 @@ class RequestService:
         self, application: str, task: Task, label: str | None, idempotency_key: str | None
     ) -> RequestRecord:
         posted_at = self._shell.mono()
-        refusal = self.busy(posted_at)
-        if refusal is not None:
-            self.metrics.refused.inc()
-            raise refusal
+        self.admit(posted_at)
         task_json = task.model_dump(mode="json")
         record, created = await self.store_write(
             self.store.create_request, application, task_json, label, idempotency_key
@@ -269,6 +266,13 @@ class RequestService:
         self._waiting[record.id] = posted_at
         self._start(record, life, lc.Start(), posted_at)
         return record
+
+    def admit(self, now: float | None = None) -> None:
+        """Raise ``Busy`` (counted in the metrics) when a new request is refused now."""
+        refusal = self.busy(now)
+        if refusal is not None:
+            self.metrics.refused.inc()
+            raise refusal
 
     def busy(self, now: float | None = None) -> Busy | None:
         """Why a new request is refused now (503), or None: load shedding.

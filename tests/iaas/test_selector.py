@@ -7,12 +7,13 @@ import os
 import signal
 from collections.abc import Awaitable, Callable
 from concurrent.futures import ThreadPoolExecutor
+from multiprocessing.reduction import ForkingPickler
 from typing import Any
 
 import pytest
 
 from robocloud.domain import Robot, Task
-from robocloud.iaas.selector import SelectionPool, SelectorSettings
+from robocloud.iaas.selector import SEND_AT_ONCE, SelectionPool, SelectorSettings
 from robocloud.selection.filtering import filter_robots
 from robocloud.selection.pipeline import select
 from robocloud.selection.problem import CoalitionProblem
@@ -105,3 +106,36 @@ def test_selections_run_side_by_side() -> None:
 
     answers = run(SelectorSettings(workers=2, max_workers=4), work)
     assert all(a.chosen == answers[0].chosen for a in answers)
+
+
+def test_a_problem_larger_than_the_pipe_write_at_once_is_sent_by_a_thread() -> None:
+    robots = [Robot.model_validate(r) for r in wildfire_robots(30_000, 3, 2)]
+    problem = CoalitionProblem.build(filter_robots(robots, TASK), TASK)
+    message = (problem, TASK.model_dump(mode="json"), "auto", 0, 2.0)
+    assert len(ForkingPickler.dumps(message)) > SEND_AT_ONCE  # else this tests nothing
+
+    async def work(pool: SelectionPool) -> Any:
+        return await pool(problem, TASK), await pool(PROBLEM, TASK)
+
+    large, small = run(SelectorSettings(workers=1), work)
+    here = select(robots, TASK, "auto", seed=0, budget_s=2.0)
+    assert large.chosen == here.chosen and large.candidates == here.candidates
+    assert small.chosen == select(ROBOTS, TASK, "auto", seed=0, budget_s=2.0).chosen
+
+
+def test_a_selection_given_up_by_its_request_stops_its_worker_and_the_pool_goes_on() -> None:
+    async def work(pool: SelectionPool) -> Any:
+        first = await pool(PROBLEM, TASK)
+        (worker,) = pool._workers
+        os.kill(worker.process.pid, signal.SIGSTOP)  # it cannot answer
+        waiting = asyncio.ensure_future(pool(PROBLEM, TASK))
+        await asyncio.sleep(0.2)
+        waiting.cancel()  # the request was canceled meanwhile
+        with pytest.raises(asyncio.CancelledError):
+            await waiting
+        after = await pool(PROBLEM, TASK)
+        return first, after, worker.process.is_alive(), len(pool._workers)
+
+    first, after, alive, workers = run(SelectorSettings(workers=1), work)
+    assert not alive and workers == 1
+    assert after.chosen == first.chosen

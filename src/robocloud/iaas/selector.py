@@ -29,6 +29,7 @@ import time
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
+from multiprocessing.reduction import ForkingPickler
 from typing import Any
 
 import numpy as np
@@ -40,6 +41,10 @@ from robocloud.selection.result import SelectionResult
 log = logging.getLogger(__name__)
 
 READY = "ready"
+# A message this long or shorter is written to a worker's pipe on the event
+# loop: the worker, idle and reading, leaves the socket's buffer (over 200 KB
+# on Linux) empty, so the write cannot wait. A longer one is written by a thread.
+SEND_AT_ONCE = 64 * 1024
 
 
 def serve(conn: Connection, memory_mb: int) -> None:
@@ -128,24 +133,56 @@ class Worker:
         child.close()
         self.ready = False
 
-    def call(self, message: tuple[Any, ...], limit: float) -> tuple[str, Any] | None:
+    async def call(
+        self,
+        message: tuple[Any, ...],
+        limit: float,
+        blocking: Callable[..., Awaitable[Any]],
+    ) -> tuple[str, Any] | None:
         """Send a selection and wait up to ``limit`` seconds for its answer (None: no answer).
+
+        On the event loop, without a thread: the message is written at once when
+        it fits the pipe's buffer (``blocking`` writes a larger one, which could
+        wait for the worker to read it), and the answer is read when the pipe is
+        readable. A thread here cost two hand-offs of the GIL a selection, each
+        dearer than the write (measured at 200 requests/s).
 
         A worker that died (killed by the system, say) answers ``("died", why)``.
         """
         try:
             if not self.ready:
-                if not self.conn.poll(60):  # a cold start imports numpy and the pipeline
+                # A cold start imports numpy and the pipeline.
+                if not await self._readable(60):
                     return None
                 self.conn.recv()
                 self.ready = True
-            self.conn.send(message)
-            if not self.conn.poll(limit):
+            data = bytes(ForkingPickler.dumps(message))
+            if len(data) <= SEND_AT_ONCE:
+                self.conn.send_bytes(data)
+            else:
+                await blocking(self.conn.send_bytes, data)
+            if not await self._readable(limit):
                 return None
             answer: tuple[str, Any] = self.conn.recv()
         except (EOFError, OSError):
             return ("died", "the selection's worker process ended unexpectedly")
         return answer
+
+    async def _readable(self, limit: float) -> bool:
+        """Whether the pipe has something to read (an answer, or its end) within ``limit`` s."""
+        if self.conn.poll(0):
+            return True
+        loop = asyncio.get_running_loop()
+        ready = loop.create_future()
+        fd = self.conn.fileno()
+        loop.add_reader(fd, lambda: ready.done() or ready.set_result(None))
+        try:
+            await asyncio.wait_for(ready, limit)
+        except TimeoutError:
+            return False
+        finally:
+            loop.remove_reader(fd)
+        return True
 
     def kill(self) -> None:
         with contextlib.suppress(Exception):
@@ -214,7 +251,7 @@ class SelectionPool:
         worker = await self._checkout()
         answer = None
         try:
-            answer = await self._blocking(worker.call, message, settings.budget_s + settings.grace)
+            answer = await worker.call(message, settings.budget_s + settings.grace, self._blocking)
         finally:
             if answer is None or answer[0] == "died":
                 self._workers.discard(worker)

@@ -175,7 +175,7 @@ class Worker:
         loop = asyncio.get_running_loop()
         ready = loop.create_future()
         fd = self.conn.fileno()
-        loop.add_reader(fd, lambda: ready.done() or ready.set_result(None))
+        loop.add_reader(fd, _wake, ready)
         try:
             await asyncio.wait_for(ready, limit)
         except TimeoutError:
@@ -195,6 +195,11 @@ class Worker:
         self.process.join(2)
         if self.process.is_alive():
             self.kill()
+
+
+def _wake(ready: asyncio.Future[None]) -> None:
+    if not ready.done():
+        ready.set_result(None)
 
 
 @dataclass

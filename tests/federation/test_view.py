@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
+import pytest
 from federation_testing import FakeTime, clouds
 
 from robocloud.domain import Task
 from robocloud.federation.memory import MemoryNetwork
-from robocloud.federation.view import GATHER_TTL
+from robocloud.federation.view import GATHER_TTL, RESERVATIONS_TTL
 from robocloud.fleet.messages import Assign
 
 TASK = Task.model_validate(
@@ -197,3 +200,30 @@ def test_a_robot_on_its_way_back_home_is_not_offered_from_a_kept_answer() -> Non
     go_on.set()
     stopping.join(5)
     assert sorted(r.id for r in a.view.remote_robots(TASK, exclude=set()).robots) == ["b-0", "b-1"]
+
+
+def test_candidates_at_hand_never_read_the_store_and_equal_candidates_while_a_read_serves(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    import robocloud.federation.view as view_module
+
+    now = [1000.0]
+    monkeypatch.setattr(view_module, "time", SimpleNamespace(monotonic=lambda: now[0]))
+    _, c = clouds(("cloud-a",), robots=3)
+    a = c["cloud-a"]
+    reads = []
+    real = a.store.reservations
+    monkeypatch.setattr(a.store, "reservations", lambda: reads.append(1) or real())
+    assert a.view.candidates_at_hand(TASK) is None  # nothing read yet: a thread must read
+    assert reads == []
+    assert a.view.candidates(TASK).problem.ids == ("a-0", "a-1", "a-2")
+    assert reads == [1]
+    rid, _ = a.store.create_request("app", {})
+    assert a.view.reserve(rid.id, [("a-1", "cloud-a")]) == []
+    at_hand = a.view.candidates_at_hand(TASK, {"a-2"})
+    assert at_hand is not None and at_hand.problem.ids == ("a-0",)  # just reserved, left out
+    assert reads == [1]
+    now[0] += RESERVATIONS_TTL  # the read is too old now
+    assert a.view.candidates_at_hand(TASK) is None and reads == [1]
+    assert a.view.candidates(TASK).problem.ids == ("a-0", "a-2")
+    assert reads == [1, 1]

@@ -30,8 +30,9 @@ class StateColumns:
         self._slot: dict[str, int] = {}
         self._ids: list[str] = []
         self._alloc(max(capacity, 1))
-        # The slots in id order, with the sorted ids; None when a robot joined.
-        self._order: tuple[np.ndarray, list[str], np.ndarray] | None = None
+        # The slots in id order, the sorted ids (a list, an array) and each id's
+        # row; None when a robot joined.
+        self._order: tuple[np.ndarray, list[str], np.ndarray, dict[str, int]] | None = None
 
     @classmethod
     def of(cls, states: Mapping[str, State], received: Mapping[str, float]) -> StateColumns:
@@ -93,13 +94,15 @@ class StateColumns:
             ids = self._ids
             slots = np.array(sorted(range(len(ids)), key=ids.__getitem__), dtype=np.int64)
             in_order = [ids[i] for i in slots.tolist()]
-            self._order = (slots, in_order, np.array(in_order, dtype=object))
-        slots, in_order, id_array = self._order
+            rows = {rid: row for row, rid in enumerate(in_order)}
+            self._order = (slots, in_order, np.array(in_order, dtype=object), rows)
+        slots, in_order, id_array, rows = self._order
         status = self._status[slots]
         status[self._at[slots] < stale_before] = OFFLINE
         return FleetColumns(
             ids=in_order,
             id_array=id_array,
+            row_of=rows,
             cloud=self._cloud[slots],
             status=status,
             battery=self._battery[slots],

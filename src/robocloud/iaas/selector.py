@@ -170,8 +170,6 @@ class Worker:
 
     async def _readable(self, limit: float) -> bool:
         """Whether the pipe has something to read (an answer, or its end) within ``limit`` s."""
-        if self.conn.poll(0):
-            return True
         loop = asyncio.get_running_loop()
         ready = loop.create_future()
         fd = self.conn.fileno()

@@ -178,3 +178,31 @@ def test_a_request_without_a_key_is_401_even_when_busy(
     assert client.post(f"/v1/requests/{rid}/cancel", headers=A).json()["state"] == "canceled"
     held.gate.set()
     assert client.post("/v1/requests", json=TASK, headers=A).status_code == 202
+
+
+def test_a_busy_cloud_answers_a_retry_of_a_request_it_has_with_that_request(
+    cloud: Callable[..., tuple[TestClient, Held]],
+) -> None:
+    client, held = cloud(max_waiting=2, busy_after=3600.0)
+    key = {**A, "Idempotency-Key": "fire-18"}
+    first = client.post("/v1/requests", json=TASK, headers=key)
+    second = client.post("/v1/requests", json=TASK, headers=A)
+    assert first.status_code == second.status_code == 202
+    # Busy now (2 waiting): the retry of the first (its answer lost, say) gets it ...
+    retry = client.post("/v1/requests", json=TASK, headers=key)
+    assert retry.status_code == 202, retry.text
+    assert retry.json()["id"] == first.json()["id"]
+    assert refused_count(client) == 0
+    # ... the same key with another body is still told so ...
+    other = client.post("/v1/requests", json={**TASK, "max_robots": 2}, headers=key)
+    assert other.status_code == 422, other.text
+    assert "was already used for another request" in other.json()["detail"]
+    # ... and a new key, or none, is refused, counted, and stores nothing.
+    new_key = client.post("/v1/requests", json=TASK, headers={**A, "Idempotency-Key": "fire-19"})
+    assert new_key.status_code == 503 and new_key.headers["X-Robocloud-Busy"] == "1"
+    assert client.post("/v1/requests", json=TASK, headers=A).status_code == 503
+    assert refused_count(client) == 2
+    listed = client.get("/v1/requests", headers=A).json()["items"]
+    assert sorted(r["id"] for r in listed) == sorted([first.json()["id"], second.json()["id"]])
+    held.gate.set()
+    assert settled(client, [first.json()["id"], second.json()["id"]]) <= SENT

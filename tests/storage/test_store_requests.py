@@ -252,3 +252,15 @@ def test_active_lists_unfinished_requests_oldest_first(store: RequestStore) -> N
     assert [r.id for r in active] == expected
     assert {r.state for r in active} == ACTIVE_STATES
     assert not {r.state for r in active} & FINAL_STATES
+
+
+def test_a_request_is_found_by_its_idempotency_key_within_its_application(
+    store: RequestStore,
+) -> None:
+    first, _ = store.create_request("wildfire", TASK, idempotency_key="fire-17")
+    store.transition(first.id, "selecting")
+    found = store.by_idempotency_key("wildfire", "fire-17")
+    assert found is not None and found.id == first.id and found.state == "selecting"
+    assert [h.state for h in found.history] == ["received", "selecting"]
+    assert store.by_idempotency_key("patrol", "fire-17") is None  # another application's
+    assert store.by_idempotency_key("wildfire", "fire-18") is None

@@ -674,9 +674,14 @@ class Gate:
             if repeated is not None:
                 await _error(repeated)(scope, receive, send)
                 return
-            if scope["method"] == "POST" and scope["path"] == "/v1/requests":
+            if (
+                scope["method"] == "POST"
+                and scope["path"] == "/v1/requests"
+                and "idempotency-key" not in headers
+            ):
                 # A busy cloud refuses before the body is read: a refusal costs
-                # little of the CPU it is short of.
+                # little of the CPU it is short of. With an Idempotency-Key the
+                # request may be a retry of one stored: ``submit`` decides.
                 service: RequestService | None = getattr(scope["app"].state, "service", None)
                 try:
                     if service is not None:

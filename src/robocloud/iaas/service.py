@@ -247,20 +247,24 @@ class RequestService:
         self, application: str, task: Task, label: str | None, idempotency_key: str | None
     ) -> RequestRecord:
         posted_at = self._shell.mono()
-        self.admit(posted_at)
         task_json = task.model_dump(mode="json")
+        refusal = self.busy(posted_at)
+        if refusal is not None:
+            # A retry of a request this cloud has (its answer was lost, say) is
+            # answered with it even when busy: nothing new would be stored.
+            if idempotency_key is not None:
+                existing = await self.in_store(
+                    self.store.by_idempotency_key, application, idempotency_key
+                )
+                if existing is not None:
+                    return _same_body(existing, task_json, label, idempotency_key)
+            self.metrics.refused.inc()
+            raise refusal
         record, created = await self.store_write(
             self.store.create_request, application, task_json, label, idempotency_key
         )
         if not created:
-            if record.task != task_json or record.label != label:
-                raise InvalidInput(
-                    f"Idempotency-Key {idempotency_key!r} was already used for another "
-                    f"request ({record.id}) with a different body; a new request needs a "
-                    "new key.",
-                    "Idempotency-Key",
-                )
-            return record
+            return _same_body(record, task_json, label, idempotency_key)
         life = lc.Life(request_id=record.id, task=task, rules=self._shell.rules)
         self.metrics.entered(record.state)
         self._waiting[record.id] = posted_at
@@ -572,3 +576,17 @@ def report_for(state: State, request_id: str) -> lc.RobotReport:
         progress=task.progress if task is not None and task.request_id == request_id else 0.0,
         last_phase=last.phase if last is not None and last.request_id == request_id else None,
     )
+
+
+def _same_body(
+    record: RequestRecord, task_json: dict[str, Any], label: str | None, key: str | None
+) -> RequestRecord:
+    """The request an Idempotency-Key was used for, if the body is the same; else a 422."""
+    if record.task != task_json or record.label != label:
+        raise InvalidInput(
+            f"Idempotency-Key {key!r} was already used for another "
+            f"request ({record.id}) with a different body; a new request needs a "
+            "new key.",
+            "Idempotency-Key",
+        )
+    return record

@@ -97,6 +97,11 @@ class MemoryRequestStore:
                 self._keys[(application, idempotency_key)] = request_id
             return self._record(request_id), True
 
+    def by_idempotency_key(self, application: str, idempotency_key: str) -> RequestRecord | None:
+        with self._lock:
+            request_id = self._keys.get((application, idempotency_key))
+            return None if request_id is None else self._record(request_id)
+
     def get(self, request_id: str, application: str | None = None) -> RequestRecord | None:
         with self._lock:
             if request_id not in self._requests:

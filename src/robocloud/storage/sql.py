@@ -210,18 +210,9 @@ class SqlRequestStore:
         rules.check_text(label, "label")
         task_text = rules.dump_json(task, "task")
 
-        def by_key(conn: Connection) -> RequestRecord | None:
-            row = conn.execute(
-                select(requests).where(
-                    requests.c.application == application,
-                    requests.c.idempotency_key == idempotency_key,
-                )
-            ).first()
-            return None if row is None else self._records(conn, [row])[0]
-
         def create(conn: Connection) -> tuple[RequestRecord, bool]:
             if idempotency_key is not None:
-                existing = by_key(conn)
+                existing = self._by_key(conn, application, idempotency_key)
                 if existing is not None:
                     return existing, False
             request_id = new_request_id()
@@ -268,10 +259,26 @@ class SqlRequestStore:
                 # Another transaction took the idempotency key (PostgreSQL;
                 # SQLite writers never overlap) or, once in 2**60, the id.
                 if idempotency_key is not None:
-                    existing = self._run(by_key, write=False)
+                    existing = self.by_idempotency_key(application, idempotency_key)
                     if existing is not None:
                         return existing, False
         raise StoreUnavailable(f"The store at {self.url} keeps refusing new requests.", self.url)
+
+    def by_idempotency_key(self, application: str, idempotency_key: str) -> RequestRecord | None:
+        return self._run(
+            lambda conn: self._by_key(conn, application, idempotency_key), write=False
+        )
+
+    def _by_key(
+        self, conn: Connection, application: str, idempotency_key: str
+    ) -> RequestRecord | None:
+        row = conn.execute(
+            select(requests).where(
+                requests.c.application == application,
+                requests.c.idempotency_key == idempotency_key,
+            )
+        ).first()
+        return None if row is None else self._records(conn, [row])[0]
 
     def get(self, request_id: str, application: str | None = None) -> RequestRecord | None:
         def work(conn: Connection) -> RequestRecord | None:

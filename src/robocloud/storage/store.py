@@ -60,6 +60,10 @@ class RequestStore(Protocol):
         """The request, or None; None also when ``application`` is given and not its owner."""
         ...
 
+    def by_idempotency_key(self, application: str, idempotency_key: str) -> RequestRecord | None:
+        """The request ``application`` created with ``idempotency_key``, or None."""
+        ...
+
     def list(
         self,
         application: str,

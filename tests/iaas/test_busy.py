@@ -206,3 +206,30 @@ def test_a_busy_cloud_answers_a_retry_of_a_request_it_has_with_that_request(
     assert sorted(r["id"] for r in listed) == sorted([first.json()["id"], second.json()["id"]])
     held.gate.set()
     assert settled(client, [first.json()["id"], second.json()["id"]]) <= SENT
+
+
+def test_requests_resumed_after_a_restart_count_as_waiting() -> None:
+    store = MemoryRequestStore()
+    left = []
+    for _ in range(2):  # a previous run stopped while these were being decided
+        record, _ = store.create_request("app-a", Task.model_validate(TASK).model_dump(mode="json"))
+        store.transition(record.id, "selecting")
+        left.append(record.id)
+    held = Held()
+    app = create_app(
+        Settings(cloud="cloud-a", api_keys={"key-a": "app-a"}, max_waiting=2, busy_after=3600.0),
+        store=store,
+        link=MemoryRobotLink("cloud-a", [robot(i) for i in range(20)], offline_after=3600),
+        selector=held,
+    )
+    with TestClient(app) as client:
+        try:
+            refused = client.post("/v1/requests", json=TASK, headers=A)
+            assert refused.status_code == 503, refused.text
+            assert refused.json()["detail"].startswith(
+                "this cloud is busy: 2 requests are waiting for their robots"
+            )
+        finally:
+            held.gate.set()
+        assert settled(client, left) <= SENT
+        assert client.post("/v1/requests", json=TASK, headers=A).status_code == 202

@@ -562,6 +562,9 @@ class RequestService:
                     )
                 continue
             life = lc.life_of(record.id, task, record.state, record.selection, self._shell.rules)
+            if record.state in UNDECIDED:
+                # Waiting for its robots again, from now: counted by ``busy``.
+                self._waiting[record.id] = self._shell.mono()
             self._start(record, life, lc.Start(resumed=True))
 
 

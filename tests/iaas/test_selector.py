@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import os
 import signal
+import time
 from collections.abc import Awaitable, Callable
 from concurrent.futures import ThreadPoolExecutor
 from multiprocessing.reduction import ForkingPickler
@@ -13,7 +14,7 @@ from typing import Any
 import pytest
 
 from robocloud.domain import Robot, Task
-from robocloud.iaas.selector import SEND_AT_ONCE, SelectionPool, SelectorSettings
+from robocloud.iaas.selector import SEND_AT_ONCE, SelectionPool, SelectorSettings, Worker
 from robocloud.selection.filtering import filter_robots
 from robocloud.selection.pipeline import select
 from robocloud.selection.problem import CoalitionProblem
@@ -139,3 +140,49 @@ def test_a_selection_given_up_by_its_request_stops_its_worker_and_the_pool_goes_
     first, after, alive, workers = run(SelectorSettings(workers=1), work)
     assert not alive and workers == 1
     assert after.chosen == first.chosen
+
+
+def test_an_answer_cut_off_midway_is_waited_for_off_the_loop_within_the_limit() -> None:
+    """A worker that stops in the middle of writing its answer never holds the event loop."""
+    import multiprocessing
+    import struct
+
+    threads = ThreadPoolExecutor(2)
+
+    async def main() -> tuple[Any, int, float]:
+        loop = asyncio.get_running_loop()
+
+        async def blocking(function: Callable[..., Any], *args: Any) -> Any:
+            return await loop.run_in_executor(threads, lambda: function(*args))
+
+        worker = Worker.__new__(Worker)  # its pipe only: the test writes the worker's side
+        worker.conn, child = multiprocessing.Pipe()
+        worker.ready = True
+        ticks = 0
+
+        async def ticking() -> None:
+            nonlocal ticks
+            while True:
+                await asyncio.sleep(0.01)
+                ticks += 1
+
+        ticker = asyncio.ensure_future(ticking())
+        started = time.monotonic()
+        call = asyncio.ensure_future(worker.call(("a selection",), 0.5, blocking))
+        await asyncio.sleep(0.05)
+        assert child.recv() == ("a selection",)
+        os.write(child.fileno(), struct.pack("!i", 1000) + b"x" * 10)  # 10 of its 1,000 bytes
+        answer = await call
+        elapsed = time.monotonic() - started
+        ticker.cancel()
+        child.close()  # the reading thread sees the end and stops
+        worker.conn.close()
+        return answer, ticks, elapsed
+
+    try:
+        answer, ticks, elapsed = asyncio.run(main())
+    finally:
+        threads.shutdown()
+    assert answer is None  # no whole answer within the limit
+    assert 0.5 <= elapsed < 2.0
+    assert ticks >= 20  # the loop went on meanwhile (50 ticks of 10 ms if never held)

@@ -157,7 +157,7 @@ def test_an_answer_cut_off_midway_is_waited_for_off_the_loop_within_the_limit() 
 
         worker = Worker.__new__(Worker)  # its pipe only: the test writes the worker's side
         worker.conn, child = multiprocessing.Pipe()
-        worker.ready = True
+        worker.ready, worker._peer = True, None
         ticks = 0
 
         async def ticking() -> None:
@@ -176,7 +176,7 @@ def test_an_answer_cut_off_midway_is_waited_for_off_the_loop_within_the_limit() 
         elapsed = time.monotonic() - started
         ticker.cancel()
         child.close()  # the reading thread sees the end and stops
-        worker.conn.close()
+        worker._close_pipe()
         return answer, ticks, elapsed
 
     try:

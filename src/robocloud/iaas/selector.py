@@ -137,6 +137,7 @@ class Worker:
         self.process.start()
         child.close()
         self.ready = False
+        self._peer: socket.socket | None = None
 
     async def call(
         self,
@@ -192,14 +193,15 @@ class Worker:
         A message is its length (4 bytes, big-endian; -1 then 8 bytes for one
         of 2 GB or more) and then its bytes.
         """
-        fd = self.conn.fileno()
-        waiting: int = struct.unpack("i", fcntl.ioctl(fd, termios.FIONREAD, b"\0\0\0\0"))[0]
+        if self._peer is None:  # the pipe's socket, to peek at (a copy of its descriptor)
+            self._peer = socket.socket(fileno=os.dup(self.conn.fileno()))
+        peer = self._peer
+        waiting: int = struct.unpack("i", fcntl.ioctl(peer, termios.FIONREAD, b"\0\0\0\0"))[0]
         if waiting == 0:
             return True  # readable with nothing to read: the worker's end is closed
         if waiting < 4:
             return False
-        with socket.socket(fileno=os.dup(fd)) as peer:
-            (size,) = struct.unpack("!i", peer.recv(4, socket.MSG_PEEK))
+        (size,) = struct.unpack("!i", peer.recv(4, socket.MSG_PEEK))
         return bool(size >= 0 and waiting >= 4 + size)
 
     async def _readable(self, limit: float) -> bool:
@@ -220,10 +222,15 @@ class Worker:
         with contextlib.suppress(Exception):
             self.process.kill()
             self.process.join(5)
+        self._close_pipe()
+
+    def _close_pipe(self) -> None:
+        if self._peer is not None:
+            self._peer.close()
         self.conn.close()
 
     def close(self) -> None:
-        self.conn.close()  # the worker sees EOF and ends
+        self._close_pipe()  # the worker sees EOF and ends
         self.process.join(2)
         if self.process.is_alive():
             self.kill()

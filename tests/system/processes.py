@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -16,6 +15,8 @@ from typing import Any
 
 import httpx
 
+from loopback_ports import free_port
+
 API_KEY = "test-key"
 HEADERS = {"Authorization": f"Bearer {API_KEY}"}
 
@@ -23,13 +24,6 @@ HEADERS = {"Authorization": f"Bearer {API_KEY}"}
 # Flags that turn a cloud's load shedding off (a 503 for new requests when too
 # many wait): for tests that send bursts to check something else.
 NO_SHEDDING = ["--busy-after", "3600", "--max-waiting", "1000000"]
-
-
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        port: int = sock.getsockname()[1]
-    return port
 
 
 def wait_until(predicate: Callable[[], Any], timeout: float, what: str, every: float = 0.05) -> Any:

@@ -5,13 +5,16 @@ from __future__ import annotations
 import asyncio
 from typing import Any
 
+import pytest
+
 from robocloud.domain import Robot, Task
+from robocloud.errors import Conflict
 from robocloud.federation.view import FederationView
 from robocloud.fleet import MemoryRobotLink
 from robocloud.iaas import lifecycle as lc
 from robocloud.iaas.actor import Inbox, RequestActor, Shell
 from robocloud.selection.pipeline import select_problem
-from robocloud.storage import MemoryRequestStore
+from robocloud.storage import MemoryRequestStore, StoreUnavailable
 
 TASK = {
     "location": [0.0, 0.0],
@@ -165,3 +168,39 @@ def test_the_inbox_gives_letters_in_order_and_a_tick_when_none_came() -> None:
     assert second is None
     assert isinstance(third, lc.Tick) and isinstance(none_came, lc.Tick)
     assert empty
+
+
+class AnswerLost(MemoryRequestStore):
+    """A store whose first move to ``selecting`` is stored and then fails as unavailable:
+    the connection broke after the commit, before its answer."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.lost = 0
+
+    def transition(self, request_id: str, new_state: str, *args: Any) -> Any:
+        record = super().transition(request_id, new_state, *args)
+        if new_state == "selecting" and not self.lost:
+            self.lost += 1
+            raise StoreUnavailable("The store at memory:// stopped answering.", "memory://")
+        return record
+
+
+def test_a_state_change_stored_by_a_try_that_lost_its_answer_is_not_a_conflict() -> None:
+    store = AnswerLost()
+    record, _ = store.create_request("app", TASK)
+    life = lc.Life(record.id, Task.model_validate(TASK))
+
+    async def main() -> tuple[Any, Any]:
+        actor = RequestActor(shell_for(store), life, record)
+        await actor._carry_out(lc.Commit("selecting", None, None, None))
+        moved = actor.record
+        # A move the request's state refuses, with no try lost before it, is still one.
+        with pytest.raises(Conflict):
+            await actor._carry_out(lc.Commit("completed", None, None, None))
+        return moved, store.get(record.id)
+
+    moved, stored = asyncio.run(main())
+    assert store.lost == 1  # the first try was stored, its answer lost
+    assert moved.state == "selecting" and stored.state == "selecting"
+    assert [h.state for h in stored.history] == ["received", "selecting"]  # stored once

@@ -202,13 +202,8 @@ class RequestActor:
         shell, rid = self.shell, self.request_id
         match effect:
             case lc.Commit(state, reason, detail, selection):
-                self.record = await self._write(
-                    shell.store.transition,
-                    rid,
-                    state,
-                    reason,
-                    detail,
-                    dict(selection) if selection is not None else None,
+                self.record = await self._transition(
+                    state, reason, detail, dict(selection) if selection is not None else None
                 )
                 shell.metrics.entered(state)
                 if state == "dispatched" and self.posted_at is not None:
@@ -290,6 +285,49 @@ class RequestActor:
         return await self._again_while_unavailable(
             lambda: self.shell.store_write(method, *args), "store write"
         )
+
+    async def _transition(
+        self,
+        state: str,
+        reason: str | None,
+        detail: str | None,
+        selection: dict[str, Any] | None,
+    ) -> RequestRecord:
+        """The request's move to ``state``, tried again while the store is unavailable.
+
+        A try that failed as unavailable may have been stored all the same: the
+        connection broke after the commit, before its answer (seen with
+        PostgreSQL behind a proxy that was cut). The next try then finds the
+        request in ``state`` already, which is refused as a move to the state it
+        is in; as this actor alone moves its request, that is the first try's
+        answer, not a conflict.
+        """
+        shell, rid = self.shell, self.request_id
+        unsure = False
+
+        async def attempt() -> RequestRecord:
+            nonlocal unsure
+            try:
+                record: RequestRecord = await shell.store_write(
+                    shell.store.transition, rid, state, reason, detail, selection
+                )
+            except Unavailable:
+                unsure = True
+                raise
+            return record
+
+        try:
+            return await self._again_while_unavailable(attempt, "store write")
+        except Conflict:
+            if not unsure:
+                raise
+            found = await self._again_while_unavailable(
+                lambda: shell.blocking(shell.store.get, rid), "store read"
+            )
+            if found is None or found.state != state:
+                raise
+            log.info("request %s: a try that lost its answer stored its move to %s", rid, state)
+            return found  # type: ignore[no-any-return]
 
     async def _again_while_unavailable(self, work: Callable[[], Awaitable[T]], what: str) -> T:
         pause = 0.2

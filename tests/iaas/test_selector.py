@@ -15,6 +15,7 @@ import pytest
 
 from robocloud.domain import Robot, Task
 from robocloud.iaas.selector import SEND_AT_ONCE, SelectionPool, SelectorSettings, Worker
+from robocloud.iaas.service import most_workers
 from robocloud.selection.filtering import filter_robots
 from robocloud.selection.pipeline import select
 from robocloud.selection.problem import CoalitionProblem
@@ -186,3 +187,13 @@ def test_an_answer_cut_off_midway_is_waited_for_off_the_loop_within_the_limit() 
     assert answer is None  # no whole answer within the limit
     assert 0.5 <= elapsed < 2.0
     assert ticks >= 20  # the loop went on meanwhile (50 ticks of 10 ms if never held)
+
+
+@pytest.mark.parametrize(
+    ("kept", "cores", "most"),
+    [(2, 2, 2), (2, 8, 4), (1, 2, 2), (1, 1, 1), (4, 2, 4), (3, 4, 4), (3, 16, 6)],
+)
+def test_the_selection_pool_grows_to_twice_its_workers_but_not_past_the_cores(
+    kept: int, cores: int, most: int
+) -> None:
+    assert most_workers(kept, cores) == most

@@ -131,7 +131,8 @@ def add_iaas_arguments(parser: argparse.ArgumentParser) -> None:
         default=2,
         metavar="N",
         help="worker processes for selections, kept ready (up to twice as many when all "
-        "are busy); 0 runs them in a thread of the IaaS (default 2)",
+        "are busy, but no more than the machine's cores); 0 runs them in a thread of the "
+        "IaaS (default 2)",
     )
     parser.add_argument(
         "--busy-after",

@@ -17,6 +17,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import os
 import re
 import time
 from collections.abc import AsyncIterator, Callable, Coroutine, Iterable
@@ -106,7 +107,7 @@ class RequestService:
                     seed=settings.seed,
                     budget_s=settings.selection_budget,
                     workers=settings.selection_workers,
-                    max_workers=max(settings.selection_workers, 2 * settings.selection_workers),
+                    max_workers=most_workers(settings.selection_workers),
                     memory_mb=settings.selection_memory_mb,
                 ),
                 self.blocking,
@@ -566,6 +567,19 @@ class RequestService:
                 # Waiting for its robots again, from now: counted by ``busy``.
                 self._waiting[record.id] = self._shell.mono()
             self._start(record, life, lc.Start(resumed=True))
+
+
+def most_workers(kept: int, cores: int | None = None) -> int:
+    """How many selection workers the pool may run when all ``kept`` are busy.
+
+    Up to twice as many, but not past the machine's cores (unless ``kept``
+    already is): more selections at once than cores only share them, each
+    slower, and more of them pick the same robot (measured on 2 cores at 200
+    requests/s offered: with 4 at once, 182 to 197/s accepted and p99 384 to
+    452 ms in four runs; with 2, 197 to 200/s and p99 202 to 312 ms in four).
+    """
+    cores = cores if cores is not None else (os.cpu_count() or 1)
+    return max(kept, min(2 * kept, cores))
 
 
 def report_for(state: State, request_id: str) -> lc.RobotReport:

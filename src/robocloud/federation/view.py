@@ -151,12 +151,12 @@ class FederationView:
 
     def _reservations(self) -> set[str]:
         """The robots the store holds (read at most every ``RESERVATIONS_TTL`` seconds)."""
+        at_hand = self._reservations_at_hand()
+        if at_hand is not None:
+            return at_hand
         now = time.monotonic()
-        cached = self._reserved
-        if cached is None or now - cached[0] >= RESERVATIONS_TTL:
-            cached = (now, set(self.store.reservations()))
-            self._reserved = cached
-        return self._and_recent(cached[1], now)
+        self._reserved = (now, set(self.store.reservations()))
+        return self._and_recent(self._reserved[1], now)
 
     def _reservations_at_hand(self) -> set[str] | None:
         """``_reservations`` if its last read serves still, else None (no read)."""

@@ -249,18 +249,15 @@ class RequestService:
     ) -> RequestRecord:
         posted_at = self._shell.mono()
         task_json = task.model_dump(mode="json")
-        refusal = self.busy(posted_at)
-        if refusal is not None:
+        if idempotency_key is not None and self.busy(posted_at) is not None:
             # A retry of a request this cloud has (its answer was lost, say) is
             # answered with it even when busy: nothing new would be stored.
-            if idempotency_key is not None:
-                existing = await self.in_store(
-                    self.store.by_idempotency_key, application, idempotency_key
-                )
-                if existing is not None:
-                    return _same_body(existing, task_json, label, idempotency_key)
-            self.metrics.refused.inc()
-            raise refusal
+            existing = await self.in_store(
+                self.store.by_idempotency_key, application, idempotency_key
+            )
+            if existing is not None:
+                return _same_body(existing, task_json, label, idempotency_key)
+        self.admit(posted_at)
         record, created = await self.store_write(
             self.store.create_request, application, task_json, label, idempotency_key
         )

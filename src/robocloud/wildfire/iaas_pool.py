@@ -171,7 +171,8 @@ class IaasPool:
                 continue
             except IaasBusy as error:
                 if pin is not None and pin.maybe_delivered:
-                    # It refused before reading the key: an earlier send may be there.
+                    # An earlier send may still be on its way there: the key
+                    # not found now does not mean it never will be.
                     raise IaasError(error.status, error.detail) from None
                 # Too busy to take it, and nothing stored: the next IaaS may take it.
                 last = error

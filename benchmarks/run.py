@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks import federation, fleet, select_command, selection, service, soak, throughput
+from benchmarks.machine import reference_ms, steal_ticks, stolen
 from benchmarks.report import SectionReport, render_markdown, render_text, write_csv
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -75,7 +76,22 @@ def git_state() -> str:
     return f"{head}{' with uncommitted changes' if dirty.strip() else ''}"
 
 
-def machine(started: dt.datetime, load_before: str, quick: bool) -> list[tuple[str, str]]:
+@dataclass(frozen=True)
+class Before:
+    """What is read of the machine before a section runs, to compare with after."""
+
+    started: dt.datetime
+    load: str
+    reference_ms: float
+    ticks: tuple[int, int] | None
+
+    @classmethod
+    def now(cls) -> Before:
+        return cls(dt.datetime.now(dt.UTC).astimezone(), load_average(), reference_ms(),
+                   steal_ticks())
+
+
+def machine(before: Before, quick: bool) -> list[tuple[str, str]]:
     try:
         usable = len(os.sched_getaffinity(0))
     except AttributeError:
@@ -93,9 +109,12 @@ def machine(started: dt.datetime, load_before: str, quick: bool) -> list[tuple[s
         ("OS", platform.platform()),
         *versions,
         ("commit", git_state()),
-        ("date", started.isoformat(timespec="seconds")),
-        ("load average (1, 5, 15 min) before", load_before),
+        ("date", before.started.isoformat(timespec="seconds")),
+        ("load average (1, 5, 15 min) before", before.load),
         ("load average (1, 5, 15 min) after", load_average()),
+        ("reference workload ms (median of 7), before and after",
+         f"{before.reference_ms:.1f} and {reference_ms():.1f}"),
+        ("CPU time stolen by the host during the section", stolen(before.ticks)),
         ("mode", "--quick (smoke check, fewer sizes and repetitions)" if quick else "full"),
     ]
 
@@ -112,15 +131,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     chosen = [s for s in SECTIONS if not args.only or s.name in args.only]
     args.out.mkdir(parents=True, exist_ok=True)
     for section in chosen:
-        started = dt.datetime.now(dt.UTC).astimezone()
-        load_before = load_average()
-        print(f"[{section.name}] running (load average {load_before}) ...", file=sys.stderr,
-              flush=True)
+        before = Before.now()
+        print(f"[{section.name}] running (load average {before.load}, reference workload "
+              f"{before.reference_ms:.1f} ms) ...", file=sys.stderr, flush=True)
         report = section.run(args.quick, args.out)
         text = render_text(report)
         print(text, flush=True)
         write_csv(args.out / f"{section.name}.csv", report.rows)
-        info = machine(started, load_before, args.quick)
+        info = machine(before, args.quick)
         (args.out / f"{section.name}.md").write_text(render_markdown(report, info))
         print("\n".join(f"{k}: {v}" for k, v in info), flush=True)
         print(f"wrote {args.out / (section.name + '.csv')}, {args.out / (section.name + '.md')}",

@@ -24,6 +24,7 @@ import httpx
 import numpy as np
 
 from benchmarks.fleet import cpu_seconds
+from benchmarks.machine import half_of_each_core, reference_ms
 from benchmarks.report import Column, Goal, SectionReport, Table
 from benchmarks.service import clouds, timestamp_of
 
@@ -216,11 +217,14 @@ def _pct(xs: list[float], q: float) -> float:
     return float(np.percentile(xs, q)) if xs else float("nan")
 
 
-def _row(got: dict[str, Any], busy_after: float) -> dict[str, Any]:
+def _row(got: dict[str, Any], busy_after: float, halved: bool,
+         reference: float) -> dict[str, Any]:
     decided = got["states"].get("dispatched", 0) + got["states"].get("rejected", 0)
     return {
         "rate": got["rate"],
         "busy_after": busy_after,
+        "machine": "half of each core taken" if halved else "as it is",
+        "reference_ms": reference,
         "sent": got["sent"],
         "accepted": got["accepted"],
         "held": got["accepted"] / got["window"],
@@ -247,21 +251,27 @@ def run(quick: bool, out: Path) -> SectionReport:
     seconds = 3.0 if quick else 10.0
     rows: list[dict[str, Any]] = []
     # The IaaS as it starts by default (busy after 0.5 s), then, at 200/s, with
-    # the shorter wait that bounds POST-to-dispatched near the goal.
-    for busy_after, its_rates in ((DEFAULT_BUSY_AFTER, rates), (SHORT_BUSY_AFTER, (200,))):
-        if quick and busy_after != DEFAULT_BUSY_AFTER:
-            continue
+    # the shorter wait that bounds POST-to-dispatched near the goal; then at
+    # 200/s again, on a machine half as fast (a busy loop on each core).
+    runs: list[tuple[float, tuple[int, ...], bool]] = [(DEFAULT_BUSY_AFTER, rates, False)]
+    if not quick:
+        runs += [(SHORT_BUSY_AFTER, (200,), False), (DEFAULT_BUSY_AFTER, (200,), True)]
+    for busy_after, its_rates, halved in runs:
         with clouds(workdir, [1000], speedup=SPEEDUP, churn=False,
                     recharge_below=RECHARGE_BELOW,
                     iaas_args=["--busy-after", str(busy_after)]) as running:
             for k, rate in enumerate(its_rates):
-                got = asyncio.run(offer(running.urls[0], running.key, rate, seconds, seed=k,
-                                        iaas_pid=running.iaas[0].pid))
-                rows.append(_row(got, busy_after))
+                with half_of_each_core() if halved else contextlib.nullcontext():
+                    reference = reference_ms()
+                    got = asyncio.run(offer(running.urls[0], running.key, rate, seconds,
+                                            seed=k, iaas_pid=running.iaas[0].pid))
+                rows.append(_row(got, busy_after, halved, reference))
                 time.sleep(2.0)  # robots back, queues empty
     table = Table(
         title=f"Open-loop load on one cloud (1,000 robots), {seconds:g} s per rate",
         columns=[Column("rate", "offered/s"), Column("busy_after", "--busy-after s", "{:g}"),
+                 Column("machine", "machine"),
+                 Column("reference_ms", "reference workload ms", "{:.0f}"),
                  Column("held", "accepted/s", "{:.0f}"),
                  Column("dispatched", "dispatched"), Column("rejected", "rejected"),
                  Column("failed", "failed"),
@@ -280,7 +290,8 @@ def run(quick: bool, out: Path) -> SectionReport:
         held = row["held"] >= 0.95 * 200 and row["unsettled"] == 0
         goals.append(Goal(
             f"200 requests/s held, POST-to-dispatched p99 < 250 ms "
-            f"(--busy-after {row['busy_after']:g})",
+            f"(--busy-after {row['busy_after']:g}"
+            f"{', half of each core taken' if row['machine'] != 'as it is' else ''})",
             f"{row['held']:.0f}/s accepted, p99 {row['p99']:.0f} ms",
             held and row["p99"] < 250, f"{250 - row['p99']:+.0f} ms"))
     notes = [
@@ -307,6 +318,12 @@ def run(quick: bool, out: Path) -> SectionReport:
         "column, and accepted/s counts only the others. Before it (measured at 200/s on "
         "the same machine): 165/s accepted, of which 1,510 of 2,000 were rejected seconds "
         "later for want of a free grabber, median 2.9 s, p99 8.9 s.",
+        "Half of each core taken: a busy loop pinned to each core at the same priority "
+        "(benchmarks/machine.py), so the IaaS, its workers, the simulator and the load "
+        "generator share half the machine; the reference workload (a fixed pure-Python "
+        "mix of JSON, dicts and sorting, median of 7) takes about twice as long. The same "
+        "virtual machine has run on hosts of different speed: an Intel Xeon one ran the "
+        "IaaS at 5.3 ms of CPU per request at 200/s, where an AMD EPYC one takes 3.3 ms.",
         f"Median of POST answer times over all rates: "
         f"{statistics.median([r['post_p99'] for r in rows]):.0f} ms (p99 per rate above).",
     ]

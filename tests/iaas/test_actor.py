@@ -171,17 +171,25 @@ def test_the_inbox_gives_letters_in_order_and_a_tick_when_none_came() -> None:
 
 
 class AnswerLost(MemoryRequestStore):
-    """A store whose first move to ``selecting`` is stored and then fails as unavailable:
-    the connection broke after the commit, before its answer."""
+    """A store whose first move to ``selecting`` and first note are stored and then fail
+    as unavailable: the connection broke after the commit, before its answer."""
 
     def __init__(self) -> None:
         super().__init__()
         self.lost = 0
+        self.notes_lost = 0
 
     def transition(self, request_id: str, new_state: str, *args: Any) -> Any:
         record = super().transition(request_id, new_state, *args)
         if new_state == "selecting" and not self.lost:
             self.lost += 1
+            raise StoreUnavailable("The store at memory:// stopped answering.", "memory://")
+        return record
+
+    def add_event(self, request_id: str, detail: str) -> Any:
+        record = super().add_event(request_id, detail)
+        if not self.notes_lost:
+            self.notes_lost += 1
             raise StoreUnavailable("The store at memory:// stopped answering.", "memory://")
         return record
 
@@ -204,3 +212,22 @@ def test_a_state_change_stored_by_a_try_that_lost_its_answer_is_not_a_conflict()
     assert store.lost == 1  # the first try was stored, its answer lost
     assert moved.state == "selecting" and stored.state == "selecting"
     assert [h.state for h in stored.history] == ["received", "selecting"]  # stored once
+
+
+def test_a_note_stored_by_a_try_that_lost_its_answer_is_not_written_again() -> None:
+    store = AnswerLost()
+    record, _ = store.create_request("app", TASK)
+    life = lc.Life(record.id, Task.model_validate(TASK))
+
+    async def main() -> Any:
+        actor = RequestActor(shell_for(store), life, record)
+        await actor._carry_out(lc.Note("robot a-0003 failed; replaced by a-0017"))
+        # The same words later are a new line: only a lost answer's retry is skipped.
+        await actor._carry_out(lc.Note("robot a-0003 failed; replaced by a-0017"))
+        return actor.record
+
+    record = asyncio.run(main())
+    assert store.notes_lost == 1
+    notes = [h.detail for h in store.get(record.id).history if h.kind == "event"]
+    assert notes == ["robot a-0003 failed; replaced by a-0017"] * 2  # not three
+    assert record.history == store.get(record.id).history

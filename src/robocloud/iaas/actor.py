@@ -211,7 +211,7 @@ class RequestActor:
                     self.posted_at = None
                 shell.publish(self.record)
             case lc.Note(detail):
-                self.record = await self._write(shell.store.add_event, rid, detail)
+                self.record = await self._note(detail)
                 shell.publish(self.record)
             case lc.SaveSelection(selection):
                 self.record = await self._write(shell.store.set_selection, rid, dict(selection))
@@ -293,41 +293,59 @@ class RequestActor:
         detail: str | None,
         selection: dict[str, Any] | None,
     ) -> RequestRecord:
-        """The request's move to ``state``, tried again while the store is unavailable.
+        """The request's move to ``state``, stored once (``_write_once``)."""
+        was = self.record.state
+        return await self._write_once(
+            lambda found: found.state == state != was,
+            self.shell.store.transition, self.request_id, state, reason, detail, selection,
+        )
+
+    async def _note(self, detail: str) -> RequestRecord:
+        """A line of the request's history, stored once (``_write_once``)."""
+
+        def count(record: RequestRecord) -> int:
+            return sum(1 for h in record.history if h.kind == "event" and h.detail == detail)
+
+        before = count(self.record)
+        return await self._write_once(
+            lambda found: count(found) > before,
+            self.shell.store.add_event, self.request_id, detail,
+        )
+
+    async def _write_once(
+        self, stored: Callable[[RequestRecord], bool], method: Callable[..., RequestRecord],
+        *args: Any,
+    ) -> RequestRecord:
+        """A write of this request, tried again while the store is unavailable, stored once.
 
         A try that failed as unavailable may have been stored all the same: the
         connection broke after the commit, before its answer (seen with
-        PostgreSQL behind a proxy that was cut). The next try then finds the
-        request in ``state`` already, which is refused as a move to the state it
-        is in; as this actor alone moves its request, that is the first try's
-        answer, not a conflict.
+        PostgreSQL behind a proxy that was cut). Tried again, a move would be
+        refused as one to the state the request is in, and a note would be
+        written twice. So after such a try the request is read first, and when
+        ``stored`` finds the write there, that is the answer. This actor alone
+        writes its request while it lives (a cancel goes through it; the
+        service notes a loan's end only for a request with no actor), so what
+        it finds is its own.
         """
         shell, rid = self.shell, self.request_id
         unsure = False
 
         async def attempt() -> RequestRecord:
             nonlocal unsure
+            if unsure:
+                found = await shell.blocking(shell.store.get, rid)
+                if found is not None and stored(found):
+                    log.info("request %s: a write that lost its answer was stored", rid)
+                    return found  # type: ignore[no-any-return]
             try:
-                record: RequestRecord = await shell.store_write(
-                    shell.store.transition, rid, state, reason, detail, selection
-                )
+                record: RequestRecord = await shell.store_write(method, *args)
             except Unavailable:
                 unsure = True
                 raise
             return record
 
-        try:
-            return await self._again_while_unavailable(attempt, "store write")
-        except Conflict:
-            if not unsure:
-                raise
-            found = await self._again_while_unavailable(
-                lambda: shell.blocking(shell.store.get, rid), "store read"
-            )
-            if found is None or found.state != state:
-                raise
-            log.info("request %s: a try that lost its answer stored its move to %s", rid, state)
-            return found  # type: ignore[no-any-return]
+        return await self._again_while_unavailable(attempt, "store write")
 
     async def _again_while_unavailable(self, work: Callable[[], Awaitable[T]], what: str) -> T:
         pause = 0.2

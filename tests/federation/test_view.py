@@ -176,7 +176,8 @@ def test_robots_this_cloud_holds_are_no_candidates_even_in_a_kept_answer() -> No
 def test_a_robot_on_its_way_back_home_is_not_offered_from_a_kept_answer() -> None:
     import threading
 
-    _, c = clouds(("cloud-a", "cloud-b"), robots=2)
+    time = FakeTime()
+    _, c = clouds(("cloud-a", "cloud-b"), robots=2, time=time)
     a, b = c["cloud-a"], c["cloud-b"]
     assert sorted(r.id for r in a.view.remote_robots(TASK, exclude=set()).robots) == ["b-0", "b-1"]
     rid, _ = a.store.create_request("app", {})
@@ -199,7 +200,27 @@ def test_a_robot_on_its_way_back_home_is_not_offered_from_a_kept_answer() -> Non
     assert [r.id for r in a.view.remote_robots(TASK, exclude=set()).robots] == ["b-1"]
     go_on.set()
     stopping.join(5)
+    time.advance(GATHER_TTL)  # back home: its home's next answer offers it
     assert sorted(r.id for r in a.view.remote_robots(TASK, exclude=set()).robots) == ["b-0", "b-1"]
+
+
+def test_a_robot_borrowed_since_an_answer_was_asked_is_not_offered_from_it() -> None:
+    time = FakeTime()
+    network, c = clouds(("cloud-a", "cloud-b"), robots=2, time=time)
+    a = c["cloud-a"]
+    assert sorted(r.id for r in a.view.remote_robots(TASK, exclude=set()).robots) == ["b-0", "b-1"]
+    rid, _ = a.store.create_request("app", {})
+    assert a.view.reserve(rid.id, [("b-0", "cloud-b")]) == []
+    a.view.cancel("b-0", "cloud-b", rid.id)  # given back: idle at home again
+    a.view.release(rid.id, [("b-0", "cloud-b")], "done")
+    # The kept answer said b-0 was idle before it worked here; it cannot say
+    # whether b-0 is idle now (a robot just stopped may not be), so it no
+    # longer offers it. Its home's next answer does.
+    assert [r.id for r in a.view.remote_robots(TASK, exclude=set()).robots] == ["b-1"]
+    assert idle_questions(network) == 1  # still the kept answer
+    time.advance(GATHER_TTL)
+    assert sorted(r.id for r in a.view.remote_robots(TASK, exclude=set()).robots) == ["b-0", "b-1"]
+    assert idle_questions(network) == 2
 
 
 def test_candidates_at_hand_never_read_the_store_and_equal_candidates_while_a_read_serves(

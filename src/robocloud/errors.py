@@ -78,6 +78,17 @@ class Busy(Unavailable):
         super().__init__(message, retry_after)
 
 
+# What a field's pattern allows, in words (``explained``): a value it refuses is
+# told that, not shown a regular expression.
+_PATTERN_WORDS: dict[str, str] = {}
+
+
+def explained(pattern: str, words: str) -> str:
+    """``pattern``, noted with what it allows in words, for ``describe_validation_errors``."""
+    _PATTERN_WORDS[pattern] = words
+    return pattern
+
+
 def field_path(location: Iterable[int | str], prefix: str = "") -> str:
     """``("robots", 3, "speed")`` -> ``robots[3].speed``."""
     path = prefix
@@ -110,6 +121,10 @@ def describe_validation_errors(
         text = f"{field} is not a known field"
     elif kind in {"json_invalid", "json_type"}:
         text = f"the input is not valid JSON ({first.get('msg', '')})"
+    elif kind == "string_pattern_mismatch" and (first.get("ctx") or {}).get("pattern") in (
+        _PATTERN_WORDS
+    ):
+        text = f"{field} must be {_PATTERN_WORDS[first['ctx']['pattern']]}"
     else:
         msg = str(first.get("msg", "is invalid"))
         msg = msg.removeprefix("Value error, ")

@@ -41,6 +41,7 @@ def field_of(error: ValidationError) -> str:
         ({"actuating": {"grabber": 1001}}, "actuating.grabber"),
         ({"actuating": {"grab\x00ber": 1}}, "actuating.grab\x00ber.[key]"),
         ({"max_robots": 100_001}, "max_robots"),
+        ({"actuating": {f"g{i}": 1 for i in range(101)}}, "actuating"),
     ],
 )
 def test_an_absurd_task_is_refused_naming_the_field(change: dict[str, object], field: str) -> None:
@@ -61,6 +62,22 @@ def test_the_bounds_themselves_are_accepted() -> None:
         }
     )
     assert task.required == {"grabber": 1000}
+    hundred = Task.model_validate(
+        {**TASK, "sensing": {f"s{i}": 1 for i in range(50)},
+         "actuating": {f"a{i}": 1 for i in range(50)}}
+    )
+    assert len(hundred.required) == 100
+
+
+def test_at_most_a_hundred_capabilities_in_all_sensing_and_actuating_together() -> None:
+    with pytest.raises(ValidationError) as caught:
+        Task.model_validate(
+            {**TASK, "sensing": {f"s{i}": 1 for i in range(50)},
+             "actuating": {f"a{i}": 1 for i in range(51)}}
+        )
+    assert "at most 100 capabilities, sensing and actuating together, not 101" in str(
+        caught.value
+    )
 
 
 @pytest.mark.parametrize(

@@ -176,6 +176,65 @@ def test_an_idempotency_key_reused_with_another_body_is_422_naming_the_header(
     assert len(client.get("/v1/requests", headers=A).json()["items"]) == 1
 
 
+def test_an_idempotency_key_is_1_to_200_printable_characters_without_spaces(
+    client: TestClient,
+) -> None:
+    """An empty key was ignored in silence and a key with spaces taken (found by hand)."""
+    for key in ("", "fire 17", "fire\t17", "x" * 201):
+        answer = client.post("/v1/requests", json=TASK, headers={**A, "Idempotency-Key": key})
+        assert answer.status_code == 422, key
+        assert answer.json()["detail"].startswith("header.idempotency-key"), answer.json()
+    answer = client.post("/v1/requests", json=TASK, headers={**A, "Idempotency-Key": "fire 17"})
+    assert "printable characters without spaces" in answer.json()["detail"]
+    assert client.get("/v1/requests", headers=A).json()["items"] == []
+    assert client.post(
+        "/v1/requests", json=TASK, headers={**A, "Idempotency-Key": "x" * 200}
+    ).status_code == 202
+
+
+def test_a_body_that_is_no_json_task_is_told_what_to_send(client: TestClient) -> None:
+    import json
+
+    body = json.dumps(TASK)
+    form = client.post("/v1/requests", content=body,
+                       headers={**A, "Content-Type": "application/x-www-form-urlencoded"})
+    assert form.status_code == 422
+    assert form.json()["detail"] == (
+        "the body is not JSON: send the task with Content-Type: application/json."
+    )
+    listed = client.post("/v1/requests", content="[1, 2]",
+                         headers={**A, "Content-Type": "application/json"})
+    assert listed.json()["detail"] == "the body must be a JSON object: a task."
+    deep = client.post("/v1/requests", content="[" * 30_000 + "]" * 30_000,
+                       headers={**A, "Content-Type": "application/json"})
+    assert deep.status_code == 422 and "nested too deep" in deep.json()["detail"]
+    # A pattern's refusal says what is allowed, not the regular expression.
+    label = client.post("/v1/requests", json={**TASK, "label": "fire\x0117"}, headers=A)
+    assert label.json()["detail"] == (
+        "label must be text without control characters (tab and newline are allowed)."
+    )
+    assert client.get("/v1/requests", headers=A).json()["items"] == []
+
+
+def test_a_task_naming_more_than_a_hundred_capabilities_is_422_at_post(
+    client: TestClient,
+) -> None:
+    """1,001 names were taken (202), then failed the request inside with a traceback:
+    the question to the other clouds carries at most 1,000 (found by hand)."""
+    many = {f"g{i}": 1 for i in range(1001)}
+    answer = client.post("/v1/requests", json={**TASK, "actuating": many}, headers=A)
+    assert answer.status_code == 422
+    assert answer.json()["detail"].startswith("actuating: dictionary should have at most 100")
+    both = {**TASK, "sensing": {f"s{i}": 1 for i in range(60)},
+            "actuating": {f"a{i}": 1 for i in range(60)}}
+    answer = client.post("/v1/requests", json=both, headers=A)
+    assert answer.status_code == 422
+    assert "at most 100 capabilities, sensing and actuating together, not 120" in (
+        answer.json()["detail"]
+    )
+    assert client.get("/v1/requests", headers=A).json()["items"] == []
+
+
 class DownStore(MemoryRequestStore):
     """A store whose database has gone away."""
 

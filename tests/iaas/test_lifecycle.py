@@ -217,6 +217,7 @@ def test_a_late_acknowledgement_gets_a_stop_and_the_robot_is_not_chosen_again() 
     assert "a-1" in select.exclude
     note = next(e for e in effects if isinstance(e, lc.Note))
     assert "did not answer" in note.detail and "attempt 2" in note.detail
+    assert ".;" not in note.detail  # the robot's sentence loses its full stop before the "; "
 
 
 def test_dispatch_stores_the_assignments_and_when() -> None:

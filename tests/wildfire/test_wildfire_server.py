@@ -7,6 +7,7 @@ read (``until``) rather than sleeping.
 from __future__ import annotations
 
 import json
+import os
 import re
 import subprocess
 import sys
@@ -550,6 +551,15 @@ def test_the_module_runs_as_a_command() -> None:
                           capture_output=True, text=True, timeout=60)
     assert done.returncode == 2
     assert "'1,2' is not X0,Y0,X1,Y1" in done.stderr
+    # Without a key every call to the IaaS would be refused while the page looked fine.
+    env = {k: v for k, v in os.environ.items() if k != "ROBOCLOUD_WILDFIRE_API_KEY"}
+    done = subprocess.run([sys.executable, "-m", "robocloud.wildfire.command", "--iaas",
+                           "http://127.0.0.1:1"], capture_output=True, text=True, timeout=60,
+                          env=env)
+    assert done.returncode == 2
+    assert done.stderr.strip() == (
+        "robocloud wildfire: no API key for the IaaS: set ROBOCLOUD_WILDFIRE_API_KEY "
+        "(or pass --api-key) to a key the IaaS accepts.")
 
 
 def test_an_answer_too_large_or_not_json_is_a_sentence(

@@ -7,6 +7,8 @@ from typing import Annotated, Literal, Protocol
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from robocloud.errors import explained
+
 # The accepted ranges (docs/model.md). Each keeps every derived number
 # (distances, times t_i, costs c_i and their sums over a fleet) finite, so an
 # absurd but well-formed value is refused where it enters, naming its field.
@@ -15,7 +17,9 @@ MIN_SPEED, MAX_SPEED = 0.001, 1000.0  # m/s
 MAX_AMOUNT = 1e9  # a capability's time (s) or cost, a travel cost per metre
 # A name or id: printable, one line. PostgreSQL refuses NUL in text, and a
 # control character in an id would corrupt logs and keys.
-NAME_PATTERN = r"^[^\x00-\x1f\x7f]+$"
+NAME_PATTERN = explained(
+    r"^[^\x00-\x1f\x7f]+$", "printable text on one line (no control character)"
+)
 MAX_NAME_LENGTH = 128
 MAX_BATTERY = 100.0
 

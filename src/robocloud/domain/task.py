@@ -16,6 +16,10 @@ MAX_COUNT = 1_000
 MAX_ROBOTS = 100_000
 MAX_COST = 1e12
 MAX_TIME = 1e9  # seconds (about 31 years)
+# Capabilities a task may name, sensing and actuating together: a fleet's robots
+# bring a few dozen kinds; more only make every selection and every question
+# to the other clouds longer (their idle-robot query carries the names).
+MAX_CAPABILITIES = 100
 
 
 
@@ -66,8 +70,8 @@ class Task(BaseModel):
     )
 
     location: Position = Field(description="[x, y] in metres")
-    sensing: dict[Name, Count] = Field(default_factory=dict)
-    actuating: dict[Name, Count] = Field(default_factory=dict)
+    sensing: dict[Name, Count] = Field(default_factory=dict, max_length=MAX_CAPABILITIES)
+    actuating: dict[Name, Count] = Field(default_factory=dict, max_length=MAX_CAPABILITIES)
     max_robots: Annotated[int, Field(ge=1, le=MAX_ROBOTS), BeforeValidator(_integral)]
     max_cost: Annotated[float, Field(ge=0.0, le=MAX_COST, allow_inf_nan=False)]
     max_time: Annotated[float, Field(ge=0.0, le=MAX_TIME, allow_inf_nan=False)] = Field(
@@ -81,6 +85,12 @@ class Task(BaseModel):
     def _requires_something(self) -> Task:
         if not self.sensing and not self.actuating:
             raise ValueError("a task must require at least one sensing or actuating capability")
+        named = len(self.sensing) + len(self.actuating)
+        if named > MAX_CAPABILITIES:
+            raise ValueError(
+                f"a task may require at most {MAX_CAPABILITIES} capabilities, sensing and "
+                f"actuating together, not {named}"
+            )
         both = sorted(set(self.sensing) & set(self.actuating))
         if both:
             raise ValueError(f"capability {both[0]!r} is listed as both sensing and actuating")

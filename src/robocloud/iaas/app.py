@@ -39,6 +39,7 @@ from robocloud.errors import (
     Unauthorized,
     Unavailable,
     describe_validation_errors,
+    explained,
 )
 from robocloud.federation.messages import CloudInfo
 from robocloud.federation.overlay import ZenohOverlay
@@ -283,6 +284,8 @@ def authenticate(authorization: str | None, keys: Mapping[str, str]) -> str:
 
 # Declares the scheme in the OpenAPI; the Gate does the checking.
 BEARER = HTTPBearer(auto_error=False, description="the application's API key")
+# The wildfire server's pool sends keys of the same form.
+IDEMPOTENCY_KEY = explained(r"^[\x21-\x7e]+$", "1 to 200 printable characters without spaces")
 SECURED = [Security(BEARER)]
 # What a client (and a fuzzer) can do next with the request a POST made.
 REQUEST_LINKS = {
@@ -373,8 +376,9 @@ def _routes() -> Any:
             str | None,
             Header(
                 max_length=200,
-                pattern=r"^[\x20-\x7e]+$",
-                description="a retry with the same key and body returns the same request",
+                pattern=IDEMPOTENCY_KEY,
+                description="a retry with the same key and body returns the same request; "
+                "1 to 200 printable characters without spaces",
             ),
         ] = None,
     ) -> RequestPublic:
@@ -595,12 +599,22 @@ def allowed_methods(request: Request) -> list[str]:
     return sorted(methods)
 
 
+# Pydantic's error types for a body that is no object at all (a list, text).
+NOT_AN_OBJECT = frozenset({"model_attributes_type", "model_type", "dict_type"})
+
+
+def _says_json(request: Request) -> bool:
+    """Whether the request's Content-Type is JSON (``application/json`` or ``+json``)."""
+    media = request.headers.get("content-type", "").split(";", 1)[0].strip().lower()
+    return media == "application/json" or media.endswith("+json")
+
+
 def _install_error_handlers(app: FastAPI) -> None:
     async def robocloud_error(_: Request, error: Exception) -> JSONResponse:
         assert isinstance(error, RoboCloudError)
         return _error(error)
 
-    async def validation_error(_: Request, error: Exception) -> JSONResponse:
+    async def validation_error(request: Request, error: Exception) -> JSONResponse:
         assert isinstance(error, RequestValidationError)
         errors = list(error.errors())
         # FastAPI prefixes the place ("body", "query", "header"); a body field
@@ -612,6 +626,13 @@ def _install_error_handlers(app: FastAPI) -> None:
         sentence = describe_validation_errors(errors).message
         if errors and errors[0].get("loc") == () and errors[0].get("type") == "missing":
             sentence = "the request body is missing: send a JSON task."
+        elif errors and errors[0].get("loc") == () and errors[0].get("type") in NOT_AN_OBJECT:
+            # FastAPI reads a body as JSON only when its Content-Type says so.
+            sentence = (
+                "the body must be a JSON object: a task."
+                if _says_json(request)
+                else "the body is not JSON: send the task with Content-Type: application/json."
+            )
         return JSONResponse({"detail": sentence}, status_code=422)
 
     async def http_error(request: Request, error: Exception) -> JSONResponse:
@@ -623,7 +644,8 @@ def _install_error_handlers(app: FastAPI) -> None:
         if error.status_code == 400:
             # FastAPI's answer to a body it cannot decode (not UTF-8, say).
             return JSONResponse(
-                {"detail": "the body could not be read: send a JSON task in UTF-8."},
+                {"detail": "the body could not be read as JSON (not UTF-8, or nested too "
+                 "deep): send a JSON task in UTF-8."},
                 status_code=422,
             )
         if error.status_code == 405:

@@ -12,10 +12,14 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from robocloud.domain import RequestState, Task
+from robocloud.errors import explained
 
 # A label is free text of one or more lines: no NUL (PostgreSQL refuses it)
 # and no other control character but tab and newline.
-LABEL_PATTERN = r"^[^\x00-\x08\x0b\x0c\x0e-\x1f\x7f]*$"
+LABEL_PATTERN = explained(
+    r"^[^\x00-\x08\x0b\x0c\x0e-\x1f\x7f]*$",
+    "text without control characters (tab and newline are allowed)",
+)
 
 
 class RequestCreate(Task):

@@ -33,12 +33,14 @@ from urllib.parse import urlencode
 import msgspec
 
 from robocloud.domain import Robot
-from robocloud.errors import InvalidInput
+from robocloud.errors import InvalidInput, explained
 from robocloud.iaas.presenters import remote_robot_json, robot_json, shown_status
 
 DEFAULT_LIMIT = 1000  # robots a page when the client does not say
 MAX_LIMIT = 10_000  # the most a client may ask for (about 2.8 MB of JSON, 0.2 MB gzipped)
-CURSOR_PATTERN = r"^[A-Za-z0-9_-]{1,700}$"
+CURSOR_PATTERN = explained(
+    r"^[A-Za-z0-9_-]{1,700}$", "the cursor of the previous page (letters, digits, - and _)"
+)
 
 Key = tuple[str, str]  # (cloud, robot id): the order of the list
 

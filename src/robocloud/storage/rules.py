@@ -163,7 +163,7 @@ def no_such_request(request_id: str) -> NotFound:
 def bad_cursor(before: str) -> InvalidInput:
     return InvalidInput(
         f"before={before!r} is not a request of this application; "
-        "pass the next_cursor of the previous page.",
+        "pass the value of next from the previous page.",
         "before",
     )
 

@@ -131,6 +131,13 @@ def wildfire_command(args: argparse.Namespace, environ: Mapping[str, str] | None
     )
     if len(set(args.iaas)) != len(args.iaas):
         raise InvalidInput("an --iaas URL is given twice.", "--iaas")
+    if api_key is None:
+        # Every call to the IaaS would be refused (401) while the page looked fine.
+        raise InvalidInput(
+            f"no API key for the IaaS: set {API_KEY_ENV} (or pass --api-key) to a key "
+            "the IaaS accepts.",
+            "--api-key",
+        )
     settings = WildfireSettings(
         iaas=tuple(args.iaas),
         api_key=api_key,
@@ -144,7 +151,7 @@ def wildfire_command(args: argparse.Namespace, environ: Mapping[str, str] | None
     server = uvicorn.Server(config)
     print(
         f"wildfire: serving {page_url(host, port)} for the IaaS at {', '.join(args.iaas)}"
-        f"{'' if api_key else ' (no API key given)'}; Ctrl-C stops",
+        "; Ctrl-C stops",
         file=sys.stderr,
         flush=True,
     )

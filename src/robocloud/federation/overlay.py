@@ -215,7 +215,14 @@ class ZenohOverlay(HomeCommands):
         self._cloud = robot_keys.check_chunk(cloud, "cloud")
         self._session = session
         self._timeout = timeout
+        # Commands may wait on robots (a dispatch waits for the robot's ack, up
+        # to the ack timeout); questions wait on nothing. Each has its own
+        # threads, so commands to robots that do not answer never hold up a
+        # question (found with one cloud's simulator frozen: the others' commands
+        # to its robots filled the threads, and selections elsewhere left the
+        # cloud out for not answering within 500 ms).
         self._pool = ThreadPoolExecutor(8, thread_name_prefix=f"overlay-{cloud}")
+        self._asking = ThreadPoolExecutor(4, thread_name_prefix=f"overlay-{cloud}-questions")
         self._subscribing = ThreadPoolExecutor(1, thread_name_prefix=f"overlay-{cloud}-follow")
         self._watched = LatestStates("*", offline_after, clock)
         self._subscribers: dict[str, Any] = {}
@@ -233,7 +240,8 @@ class ZenohOverlay(HomeCommands):
                 keys.question(cloud, name)
                 if name in keys.QUESTIONS
                 else keys.command(cloud, "*", name),
-                self._handler(handlers[name]),
+                self._handler(handlers[name], self._asking if name in keys.QUESTIONS
+                              else self._pool),
             )
             for name in (*keys.QUESTIONS, *keys.COMMANDS)
         ]
@@ -400,13 +408,16 @@ class ZenohOverlay(HomeCommands):
         for subscriber in subscribers:
             subscriber.undeclare()
         self._pool.shutdown(wait=False, cancel_futures=True)
+        self._asking.shutdown(wait=False, cancel_futures=True)
 
     # -- internals ------------------------------------------------------------
 
-    def _handler(self, handler: Handler) -> Callable[[zenoh.Query], None]:
+    def _handler(
+        self, handler: Handler, threads: ThreadPoolExecutor
+    ) -> Callable[[zenoh.Query], None]:
         def on_query(query: zenoh.Query) -> None:
             # Keep Zenoh's thread free: the answer may send queries itself.
-            self._pool.submit(self._answer, query, handler)
+            threads.submit(self._answer, query, handler)
 
         return on_query
 

@@ -220,6 +220,22 @@ def test_a_late_acknowledgement_gets_a_stop_and_the_robot_is_not_chosen_again() 
     assert ".;" not in note.detail  # the robot's sentence loses its full stop before the "; "
 
 
+def test_a_refusal_names_the_robots_of_the_try_told_to_stop() -> None:
+    other = lc.Member("c-7", "cloud-c", ("light",), 30.0, 5.0)
+    life = replace(
+        FRESH, state="selecting",
+        attempt=lc.Attempt("dispatch", 1, TASK, "assigning", chosen=(BOTH, other)),
+    )
+    _, effects = lc.decide(life, lc.Acked({"a-1": "robot a-1 is charging, not idle."}), NOW)
+    stop = next(e for e in effects if isinstance(e, lc.StopRobots))
+    assert stop.robots == (("a-1", "cloud-a"), ("c-7", "cloud-c"))
+    note = next(e for e in effects if isinstance(e, lc.Note))
+    assert note.detail == (
+        "robot a-1 refused the task: robot a-1 is charging, not idle; c-7 told to stop; "
+        "selecting again (attempt 2)"
+    )
+
+
 def test_dispatch_stores_the_assignments_and_when() -> None:
     after, effects = lc.decide(SITUATIONS["assigning"], lc.Acked({}), NOW)
     commit = effects[0]

@@ -449,7 +449,12 @@ def _on_acked(life: Life, event: Acked, now: Now) -> Step:
             Release(attempt.pairs, "refused"),
         ]
         life = replace(life, excluded=life.excluded | set(event.refused))
-        why = "; ".join(f"robot {r} refused the task: {w}" for r, w in event.refused.items())
+        why = "; ".join(
+            f"robot {r} refused the task: {w.rstrip('.')}" for r, w in event.refused.items()
+        )
+        others = [r for r, _ in attempt.pairs if r not in event.refused]
+        if others:  # their history would not name them otherwise
+            why += f"; {', '.join(others)} told to stop"
         life, more = _retry(life, attempt, why, now)
         return life, stop + more
     if attempt.purpose == "dispatch":

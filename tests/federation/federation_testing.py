@@ -2,17 +2,18 @@
 
 from __future__ import annotations
 
+import contextlib
 import socket
 import threading
 import time
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from datetime import UTC, datetime, timedelta
 
 from robocloud.domain import Robot
 from robocloud.federation.memory import MemoryNetwork, MemoryOverlay
 from robocloud.federation.messages import LoanQuery
-from robocloud.federation.overlay import Overlay, Unreachable
+from robocloud.federation.overlay import Overlay, Unreachable, ZenohOverlay
 from robocloud.federation.view import FederationView
 from robocloud.fleet import MemoryRobotLink
 from robocloud.iaas.home import Home
@@ -31,6 +32,36 @@ def wait_for_commands(overlay: Overlay, home: str, timeout: float = 5.0) -> None
             if time.monotonic() > deadline:
                 raise
             time.sleep(0.05)
+
+
+@contextlib.contextmanager
+def zenoh_pair(
+    home_a: Home, home_b: Home, timeout: float
+) -> Iterator[tuple[ZenohOverlay, ZenohOverlay]]:
+    """cloud-a's and cloud-b's overlays on real Zenoh routers, joined and ready for commands.
+
+    ``timeout``: how long cloud-a's calls wait.
+    """
+    import zenoh
+
+    from robocloud.federation.keys import cloud_token
+    from robocloud.fleet import open_router, wait_for_liveliness
+
+    b_endpoint = free_endpoint()
+    b_session = open_router([b_endpoint])
+    a_session = open_router([free_endpoint()], [b_endpoint])
+    sessions: list[zenoh.Session] = [a_session, b_session]
+    b = ZenohOverlay(b_session, "cloud-b", home_b)
+    a = ZenohOverlay(a_session, "cloud-a", home_a, timeout=timeout)
+    try:
+        assert wait_for_liveliness(a_session, cloud_token("cloud-b"), 5.0)
+        wait_for_commands(a, "cloud-b")
+        yield a, b
+    finally:
+        a.close()
+        b.close()
+        for session in sessions:
+            session.close()  # type: ignore[no-untyped-call]
 
 
 def free_endpoint() -> str:

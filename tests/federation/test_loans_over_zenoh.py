@@ -13,14 +13,12 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-import zenoh
-from federation_testing import free_endpoint, wait_for_commands
+from federation_testing import zenoh_pair
 
 from robocloud.domain import Robot
-from robocloud.federation.keys import cloud_token
 from robocloud.federation.messages import Dispatch, Release, Reservation
 from robocloud.federation.overlay import ZenohOverlay
-from robocloud.fleet import MemoryRobotLink, open_router, wait_for_liveliness
+from robocloud.fleet import MemoryRobotLink
 from robocloud.fleet.messages import Assign
 from robocloud.iaas.home import Home
 from robocloud.storage import MemoryRequestStore, SqlRequestStore
@@ -48,28 +46,17 @@ def robot(i: int) -> Robot:
 @pytest.fixture
 def two_clouds(tmp_path: Path) -> Iterator[tuple[ZenohOverlay, Home]]:
     """cloud-a (no robots) and cloud-b (1,000 robots, a SQLite store), routers joined."""
-    b_endpoint = free_endpoint()
-    b_session = open_router([b_endpoint])
-    a_session = open_router([free_endpoint()], [b_endpoint])
-    sessions: list[zenoh.Session] = [a_session, b_session]
     store = SqlRequestStore(f"sqlite:///{tmp_path / 'cloud-b.db'}")
     link = MemoryRobotLink("cloud-b", [robot(i) for i in range(LOANS)])
     home_b = Home("cloud-b", store, link, lease_max=3600)  # no lease lapses during the test
     home_a = Home("cloud-a", MemoryRequestStore(), MemoryRobotLink("cloud-a"))
-    b = ZenohOverlay(b_session, "cloud-b", home_b)
-    # The calls wait up to 5 s (1 s by default): the test counts loans, not time, and a
-    # loaded machine (two test workers beside other work) can stall a call past 1 s.
-    a = ZenohOverlay(a_session, "cloud-a", home_a, timeout=5.0)
     try:
-        assert wait_for_liveliness(a_session, cloud_token("cloud-b"), 5.0)
-        wait_for_commands(a, "cloud-b")
-        yield a, home_b
+        # The calls wait up to 5 s (1 s by default): the test counts loans, not time, and a
+        # loaded machine (two test workers beside other work) can stall a call past 1 s.
+        with zenoh_pair(home_a, home_b, timeout=5.0) as (a, _):
+            yield a, home_b
     finally:
-        a.close()
-        b.close()
         store.close()
-        for session in sessions:
-            session.close()  # type: ignore[no-untyped-call]
 
 
 def test_a_thousand_loans_made_and_released(two_clouds: tuple[ZenohOverlay, Home]) -> None:

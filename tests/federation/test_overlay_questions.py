@@ -14,15 +14,12 @@ from collections.abc import Iterator
 from typing import Any
 
 import pytest
-import zenoh
-from federation_testing import free_endpoint, wait_for_commands
+from federation_testing import robot, zenoh_pair
 
-from robocloud.domain import Robot
 from robocloud.errors import RoboCloudError
-from robocloud.federation.keys import cloud_token
 from robocloud.federation.messages import Dispatch, IdleQuery
 from robocloud.federation.overlay import ZenohOverlay
-from robocloud.fleet import MemoryRobotLink, open_router, wait_for_liveliness
+from robocloud.fleet import MemoryRobotLink
 from robocloud.fleet.messages import Assign
 from robocloud.iaas.home import Home
 from robocloud.storage import MemoryRequestStore
@@ -46,42 +43,17 @@ class FrozenRobots(Home):
         raise RoboCloudError(f"robot {dispatch.robot} did not answer.")
 
 
-def robot(i: int) -> Robot:
-    return Robot.model_validate(
-        {
-            "id": f"b-{i:04d}",
-            "cloud": "cloud-b",
-            "position": [float(i), 0.0],
-            "speed": 1.0,
-            "battery": 90.0,
-            "status": "idle",
-            "travel_cost_per_m": 0.1,
-            "capabilities": {"grabber": {"kind": "actuating", "time": 20.0, "cost": 3.0}},
-        }
-    )
-
-
 @pytest.fixture
 def clouds() -> Iterator[tuple[ZenohOverlay, FrozenRobots]]:
-    b_endpoint = free_endpoint()
-    b_session = open_router([b_endpoint])
-    a_session = open_router([free_endpoint()], [b_endpoint])
-    sessions: list[zenoh.Session] = [a_session, b_session]
     home_b = FrozenRobots("cloud-b", MemoryRequestStore(),
-                          MemoryRobotLink("cloud-b", [robot(i) for i in range(3)]))
+                          MemoryRobotLink("cloud-b", [robot("cloud-b", i) for i in range(3)]))
     home_a = Home("cloud-a", MemoryRequestStore(), MemoryRobotLink("cloud-a"))
-    b = ZenohOverlay(b_session, "cloud-b", home_b)
-    a = ZenohOverlay(a_session, "cloud-a", home_a, timeout=20.0)
     try:
-        assert wait_for_liveliness(a_session, cloud_token("cloud-b"), 5.0)
-        wait_for_commands(a, "cloud-b")
-        yield a, home_b
+        with zenoh_pair(home_a, home_b, timeout=20.0) as (a, _):
+            yield a, home_b
+            home_b.thaw.set()  # before the overlays close: their stuck threads end
     finally:
         home_b.thaw.set()
-        a.close()
-        b.close()
-        for session in sessions:
-            session.close()  # type: ignore[no-untyped-call]
 
 
 def test_a_home_answers_questions_while_its_commands_wait_on_robots(
@@ -94,7 +66,7 @@ def test_a_home_answers_questions_while_its_commands_wait_on_robots(
     stuck = [
         threading.Thread(
             target=lambda: acks.append(
-                a.dispatch("cloud-b", Dispatch(robot="b-0000", command=command))
+                a.dispatch("cloud-b", Dispatch(robot="b-0", command=command))
             ),
             daemon=True,
         )
@@ -108,9 +80,7 @@ def test_a_home_answers_questions_while_its_commands_wait_on_robots(
     query = IdleQuery(origin="cloud-a", min_battery=0.0, capabilities=["grabber"])
     gathered = a.gather_idle(query, 1.0)
     assert gathered.missing == []
-    assert sorted(r.id for r in gathered.replies["cloud-b"].robots) == [
-        "b-0000", "b-0001", "b-0002"
-    ]
+    assert sorted(r.id for r in gathered.replies["cloud-b"].robots) == ["b-0", "b-1", "b-2"]
     assert [info.cloud for info in a.infos()] == ["cloud-a", "cloud-b"]
     home_b.thaw.set()
     for thread in stuck:

@@ -230,3 +230,34 @@ def test_bad_and_partial_messages_are_logged_and_never_stop_the_gateway(
     assert "acme.bad$6 cannot be a robot id" in said
     assert "bad-7/state: it is 1100000 bytes, over the 1048576 accepted." in said
     assert set(link.states()) == {robot}
+
+
+def test_two_agvs_whose_names_make_one_robot_id_are_not_one_robot(
+    world: tuple[ZenohRobotLink, Vda5050Gateway, list[Vehicle]],
+    interface: str,
+    mosquitto: tuple[str, int],
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """Manufacturer "dup" with serial "x.1" and "dup.x" with "1" are both dup.x.1: the
+    second was taken as the same robot, its states mixed with the first's (found by hand)."""
+    link, gateway, _ = world
+    caplog.set_level(logging.WARNING)
+    client = mqtt.Client(CallbackAPIVersion.VERSION2)
+    client.connect(*mosquitto)
+    client.loop_start()
+    first = vda_state(agvPosition={"x": 200.0, "y": 0.0, "theta": 0.0, "mapId": "map",
+                                   "positionInitialized": True})
+    second = vda_state(agvPosition={"x": 300.0, "y": 0.0, "theta": 0.0, "mapId": "map",
+                                    "positionInitialized": True})
+    client.publish(f"{interface}/v2/dup/x.1/state", json.dumps(first), qos=1).wait_for_publish(5)
+    wait_until(lambda: "dup.x.1" in link.states())
+    for _ in range(3):
+        client.publish(f"{interface}/v2/dup.x/1/state", json.dumps(second),
+                       qos=1).wait_for_publish(5)  # fmt: skip
+    client.disconnect()
+    client.loop_stop()
+    wait_until(lambda: any("which the AGV dup/x.1 is already" in r.getMessage()
+                           for r in caplog.records))  # fmt: skip
+    time.sleep(0.6)  # a publish of the gateway's, had the second been taken
+    assert gateway.robot_ids() == ["dup.x.1"]
+    assert link.states()["dup.x.1"].position == [200.0, 0.0]

@@ -236,6 +236,25 @@ def test_a_refusal_names_the_robots_of_the_try_told_to_stop() -> None:
     )
 
 
+@pytest.mark.parametrize(
+    ("report", "why"),
+    [
+        (lc.RobotReport("a-1", "offline", 0.0, "failed", 0.5), "its battery died"),
+        (lc.RobotReport("a-1", "offline", 40.0, "failed", 0.5), "it went offline"),
+        # A fleet gateway's vehicle dropped the order while online (VDA 5050).
+        (lc.RobotReport("a-1", "busy", 40.0, "failed", 0.5),
+         "it reported that it cannot finish its task"),
+        (lc.RobotReport("a-1", "idle", 40.0, None, 0.0, last_phase="failed"),
+         "it reported that it cannot finish its task"),
+    ],
+)
+def test_a_failure_says_why_the_robot_failed(report: lc.RobotReport, why: str) -> None:
+    _, effects = lc.decide(SITUATIONS["underway"], report, LATER)
+    notes = [e.detail for e in effects if isinstance(e, lc.Note)]
+    commits = [e.detail for e in effects if isinstance(e, lc.Commit)]
+    assert any(f"robot a-1 failed: {why}" in (d or "") for d in notes + commits), effects
+
+
 def test_dispatch_stores_the_assignments_and_when() -> None:
     after, effects = lc.decide(SITUATIONS["assigning"], lc.Acked({}), NOW)
     commit = effects[0]

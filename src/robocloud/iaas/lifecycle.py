@@ -524,15 +524,13 @@ def _on_report(life: Life, event: RobotReport, now: Now) -> Step:
         return life, []
     if event.phase is not None:
         if event.phase == "failed" or (event.status == "offline" and event.phase != "done"):
-            why = "its battery died" if event.battery <= 0 else "it went offline"
-            return _member_failed(life, event.robot, why, now)
+            return _member_failed(life, event.robot, _why_failed(event), now)
         return _advance(_with(life, _heard(member, event, now)))
     if event.last_phase == "done":
         done = replace(member, phase="done", progress=1.0, heard_at=now.mono, confirmed=True)
         return _advance(_with(life, done))
     if event.last_phase == "failed" or event.status == "offline":
-        why = "its battery died" if event.battery <= 0 else "it went offline"
-        return _member_failed(life, event.robot, why, now)
+        return _member_failed(life, event.robot, _why_failed(event), now)
     if member.confirmed:
         return _member_failed(life, event.robot, "it no longer reports this request", now)
     if now.mono - member.since > life.rules.offline_after:
@@ -597,6 +595,16 @@ _HANDLERS: dict[type, Callable[[Life, Any, Now], Step]] = {
 
 
 # -- the steps the handlers share -----------------------------------------------------
+
+
+def _why_failed(event: RobotReport) -> str:
+    """Why a robot that reports its task failed, or that went offline at it, failed it."""
+    if event.battery <= 0:
+        return "its battery died"
+    if event.status == "offline":
+        return "it went offline"
+    # A fleet gateway reports a task its vehicle dropped while still online.
+    return "it reported that it cannot finish its task"
 
 
 def _begin(

@@ -185,7 +185,8 @@ class Vda5050Gateway:
         try:
             self._message(msg.topic, bytes(msg.payload))
         except BadMessage as error:
-            self._complain(msg.topic, f"ignoring the message on {msg.topic}: {error}.")
+            why = str(error).rstrip(".")  # a validation sentence ends with its own full stop
+            self._complain(msg.topic, f"ignoring the message on {msg.topic}: {why}.")
         except Exception:  # nothing a broker says stops the gateway
             log.exception("a message on %s could not be handled", msg.topic)
 
@@ -244,6 +245,15 @@ class Vda5050Gateway:
                 topic,
                 f"ignoring {topic}: {name.manufacturer}.{name.serial} cannot be a robot id "
                 "(1 to 128 printable characters, none of / * $ ? #).",
+            )
+            return None
+        other = self._by_robot.get(rid)
+        if other is not None:
+            # "dup"/"x.1" and "dup.x"/"1" are both dup.x.1: one robot must not be two AGVs.
+            self._complain(
+                topic,
+                f"ignoring {topic}: it would be robot {rid}, which the AGV "
+                f"{other.name.manufacturer}/{other.name.serial} is already.",
             )
             return None
         if len(self._agvs) >= MAX_AGVS:

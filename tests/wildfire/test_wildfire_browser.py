@@ -71,6 +71,21 @@ def test_the_page_loads_everything_from_the_server(page: Any, system: System) ->
         assert stream.headers["content-type"].startswith("text/event-stream")
 
 
+def test_axis_ticks_less_than_a_unit_apart_keep_the_decimals_that_tell_them_apart(
+        page: Any) -> None:
+    """A front whose times were 5 to 6.6 s apart was labelled "5 5 6 6" (found by hand)."""
+    labels = page.evaluate("""async () => {
+        const u = await import("/static/js/util.js");
+        const label = (lo, hi) => {
+            const ts = u.ticks(lo, hi, 4);
+            return ts.map((t) => u.fmtNumber(t, u.tickDigits(ts)));
+        };
+        return [label(5, 6.6), label(0.1, 0.9), label(0, 400)];
+    }""")
+    assert labels == [["5.0", "5.5", "6.0", "6.5"], ["0.2", "0.4", "0.6", "0.8"],
+                      ["0", "100", "200", "300", "400"]]
+
+
 def test_a_request_is_dispatched_underway_and_completed(page: Any, system: System) -> None:
     wait_for_fleet(page)
     place_fire(page, 1000, 1000)

@@ -3,7 +3,7 @@
 // the coalition now at work is marked too ("now"), where its time and cost are.
 // Inline SVG.
 
-import { fmtNumber, svg, ticks } from "./util.js";
+import { fmtNumber, svg, tickDigits, ticks } from "./util.js";
 
 const W = 380;
 const H = 190;
@@ -71,12 +71,15 @@ export function drawFront(request, { currency = "" } = {}) {
   const y = (c) => H - M.bottom - ((c - c0) / (c1 - c0)) * (H - M.top - M.bottom);
 
   const axis = svg("g", { class: "axis" });
-  const costDigits = c1 - c0 < 10 ? 1 : 0;
-  for (const t of ticks(t0, t1, 4)) {
+  const timeTicks = ticks(t0, t1, 4);
+  const timeDigits = tickDigits(timeTicks);
+  const costTicks = ticks(c0, c1, 4);
+  const costDigits = Math.max(c1 - c0 < 10 ? 1 : 0, tickDigits(costTicks));
+  for (const t of timeTicks) {
     axis.append(svg("line", { class: "gridline", x1: x(t), x2: x(t), y1: M.top, y2: H - M.bottom }));
-    axis.append(svg("text", { x: x(t), y: H - M.bottom + 13, "text-anchor": "middle", text: fmtNumber(t) }));
+    axis.append(svg("text", { x: x(t), y: H - M.bottom + 13, "text-anchor": "middle", text: fmtNumber(t, timeDigits) }));
   }
-  for (const c of ticks(c0, c1, 4)) {
+  for (const c of costTicks) {
     axis.append(svg("line", { class: "gridline", x1: M.left, x2: W - M.right, y1: y(c), y2: y(c) }));
     axis.append(svg("text", { x: M.left - 5, y: y(c) + 3.5, "text-anchor": "end", text: fmtNumber(c, costDigits) }));
   }

@@ -80,6 +80,18 @@ export function ticks(lo, hi, count = 5) {
   return out;
 }
 
+// The decimals that tell each of `values` (evenly spaced ticks) from the next, at most 3:
+// ticks half a second apart are 5.0 and 5.5, not 5 and 6.
+export function tickDigits(values) {
+  if (values.length < 2) return 0;
+  const step = Math.abs(values[1] - values[0]);
+  for (let digits = 0; digits < 3; digits++) {
+    const scaled = step * 10 ** digits;
+    if (Math.abs(scaled - Math.round(scaled)) < 1e-9) return digits;
+  }
+  return 3;
+}
+
 export function sentence(text) {
   const t = String(text || "").trim();
   if (!t) return "";

@@ -115,16 +115,15 @@ def describe_validation_errors(
     location = [p for p in first.get("loc", ()) if not (isinstance(p, str) and "[" in p)]
     field = field_path(location, prefix)
     kind = first.get("type", "")
+    words = _PATTERN_WORDS.get((first.get("ctx") or {}).get("pattern", ""))
     if kind == "missing":
         text = f"{field} is missing"
     elif kind == "extra_forbidden":
         text = f"{field} is not a known field"
     elif kind in {"json_invalid", "json_type"}:
         text = f"the input is not valid JSON ({first.get('msg', '')})"
-    elif kind == "string_pattern_mismatch" and (first.get("ctx") or {}).get("pattern") in (
-        _PATTERN_WORDS
-    ):
-        text = f"{field} must be {_PATTERN_WORDS[first['ctx']['pattern']]}"
+    elif kind == "string_pattern_mismatch" and words is not None:
+        text = f"{field} must be {words}"
     else:
         msg = str(first.get("msg", "is invalid"))
         msg = msg.removeprefix("Value error, ")

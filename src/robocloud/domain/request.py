@@ -16,6 +16,12 @@ from __future__ import annotations
 
 from typing import Literal
 
+from robocloud.errors import explained
+
+# An Idempotency-Key, as the IaaS takes it and the wildfire server passes it on.
+IDEMPOTENCY_KEY_RULE = "1 to 200 printable characters without spaces"
+IDEMPOTENCY_KEY_PATTERN = explained(r"^[\x21-\x7e]{1,200}$", IDEMPOTENCY_KEY_RULE)
+
 RequestState = Literal[
     "received",
     "selecting",

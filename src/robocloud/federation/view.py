@@ -287,14 +287,14 @@ class FederationView:
     def _borrowed_now(self, ids: Iterable[str]) -> None:
         """Robots just lent to this cloud: no answer asked before now offers them.
 
-        Kept for ``gather_ttl``, as long as an answer is. Copy on write, as
-        selections read it from other threads.
+        Kept for ``gather_ttl``, as long as an answer is.
         """
         now = self._clock()
         with self._lock:
-            borrowed = {r: at for r, at in self._borrowed.items() if now - at < self.gather_ttl}
-            borrowed.update((r, now) for r in ids)
-            self._borrowed = borrowed
+            self._borrowed = {
+                r: at for r, at in self._borrowed.items() if now - at < self.gather_ttl
+            }
+            self._borrowed.update((r, now) for r in ids)
 
     def forget_gathered(self) -> None:
         """Ask the other clouds again at the next selection."""

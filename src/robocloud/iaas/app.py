@@ -28,6 +28,7 @@ from starlette.middleware.gzip import GZipMiddleware
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from robocloud.domain import RequestState
+from robocloud.domain.request import IDEMPOTENCY_KEY_PATTERN, IDEMPOTENCY_KEY_RULE
 from robocloud.domain.robot import NAME_PATTERN, Name, RobotStatus
 from robocloud.errors import (
     Busy,
@@ -39,7 +40,6 @@ from robocloud.errors import (
     Unauthorized,
     Unavailable,
     describe_validation_errors,
-    explained,
 )
 from robocloud.federation.messages import CloudInfo
 from robocloud.federation.overlay import ZenohOverlay
@@ -284,8 +284,6 @@ def authenticate(authorization: str | None, keys: Mapping[str, str]) -> str:
 
 # Declares the scheme in the OpenAPI; the Gate does the checking.
 BEARER = HTTPBearer(auto_error=False, description="the application's API key")
-# The wildfire server's pool sends keys of the same form.
-IDEMPOTENCY_KEY = explained(r"^[\x21-\x7e]+$", "1 to 200 printable characters without spaces")
 SECURED = [Security(BEARER)]
 # What a client (and a fuzzer) can do next with the request a POST made.
 REQUEST_LINKS = {
@@ -376,9 +374,9 @@ def _routes() -> Any:
             str | None,
             Header(
                 max_length=200,
-                pattern=IDEMPOTENCY_KEY,
+                pattern=IDEMPOTENCY_KEY_PATTERN,
                 description="a retry with the same key and body returns the same request; "
-                "1 to 200 printable characters without spaces",
+                f"{IDEMPOTENCY_KEY_RULE}",
             ),
         ] = None,
     ) -> RequestPublic:

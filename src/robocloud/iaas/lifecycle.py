@@ -620,7 +620,6 @@ def _begin(
 
 
 def _retry(life: Life, attempt: Attempt, why: str, now: Now) -> Step:
-    why = why.rstrip(".")  # a robot's refusal is a sentence of its own
     if attempt.number >= life.rules.attempts:
         reason = (
             f"no coalition could be reserved and dispatched in {life.rules.attempts} "

@@ -53,6 +53,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.middleware.gzip import GZipMiddleware
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from robocloud.domain.request import IDEMPOTENCY_KEY_PATTERN, IDEMPOTENCY_KEY_RULE
 from robocloud.wildfire.config import WildfireSettings
 from robocloud.wildfire.feed import LiveFeed, TooManyPages
 from robocloud.wildfire.iaas_client import IaasBusy, IaasError, IaasUnreachable
@@ -64,7 +65,7 @@ log = logging.getLogger(__name__)
 
 STATIC = Path(__file__).parent / "static"
 MAX_BODY_BYTES = 64 * 1024
-IDEMPOTENCY_KEY = re.compile(r"[\x21-\x7e]{1,200}")
+IDEMPOTENCY_KEY = re.compile(IDEMPOTENCY_KEY_PATTERN)
 DEFAULT_PAGE = 25
 
 # The page loads nothing from anywhere but this server.
@@ -235,8 +236,7 @@ def _api() -> APIRouter:
         idempotency_key: Annotated[str | None, Header()] = None,
     ) -> JSONResponse:
         if idempotency_key is not None and not IDEMPOTENCY_KEY.fullmatch(idempotency_key):
-            raise IaasError(422, "the Idempotency-Key header must be 1 to 200 printable "
-                                 "characters without spaces.")
+            raise IaasError(422, f"the Idempotency-Key header must be {IDEMPOTENCY_KEY_RULE}.")
         sends = metrics_of(request).sends
         try:
             body = await _bounded_body(request)

@@ -180,7 +180,7 @@ def _home_with_loans(size: int) -> Iterator[Any]:
     """cloud-b's Home on a SQLite file, with ``size`` robots each lent to a request of cloud-a."""
     from robocloud.domain import Robot
     from robocloud.fleet import MemoryRobotLink
-    from robocloud.iaas.home import Home
+    from robocloud.federation.home import Home
     from robocloud.storage import SqlRequestStore
 
     robots = [

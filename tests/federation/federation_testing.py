@@ -16,7 +16,7 @@ from robocloud.federation.messages import LoanQuery
 from robocloud.federation.overlay import Overlay, Unreachable, ZenohOverlay
 from robocloud.federation.view import FederationView
 from robocloud.fleet import MemoryRobotLink
-from robocloud.iaas.home import Home
+from robocloud.federation.home import Home
 from robocloud.storage import MemoryRequestStore, RequestStore
 
 

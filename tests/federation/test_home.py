@@ -135,7 +135,7 @@ def test_dispatch_only_for_a_robot_lent_to_the_senders_request(
     ack = a.overlay.dispatch("cloud-b", Dispatch(robot="b-0", command=go("req-1")))
     assert not ack.ok and "not lent" in (ack.error or "")
     lend(a, "req-1", ["b-0"], dispatch=False)
-    with caplog.at_level(logging.INFO, logger="robocloud.iaas.home"):
+    with caplog.at_level(logging.INFO, logger="robocloud.federation.home"):
         ack = cc.overlay.dispatch("cloud-b", Dispatch(robot="b-0", command=go("req-1")))
     assert not ack.ok
     assert (
@@ -153,7 +153,7 @@ def test_cloud_c_cannot_touch_cloud_as_loans(
     a, b, cc = c["cloud-a"], c["cloud-b"], c["cloud-c"]
     lend(a, "req-1", ["b-0", "b-1"])
     before = b.store.loans()
-    with caplog.at_level(logging.WARNING, logger="robocloud.iaas.home"):
+    with caplog.at_level(logging.WARNING, logger="robocloud.federation.home"):
         released = cc.overlay.release("cloud-b", Release(request_id="req-1"))
         canceled = cc.overlay.cancel("cloud-b", Release(request_id="req-1", robots=["b-0"]))
         confirmed = cc.overlay.confirm("cloud-b", Reservation(request_id="req-1", robots=["b-1"]))
@@ -296,7 +296,7 @@ def test_an_origin_away_past_the_deadline_loses_its_loans_and_learns_it_back(
             time.advance(1)
             b.link.step(0)
 
-    with caplog.at_level(logging.INFO, logger="robocloud.iaas.home"):
+    with caplog.at_level(logging.INFO, logger="robocloud.federation.home"):
         b.home.reconcile()  # cloud-a does not answer: the clock starts
         wait(59)
         b.home.reconcile()

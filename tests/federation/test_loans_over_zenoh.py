@@ -20,7 +20,7 @@ from robocloud.federation.messages import Dispatch, Release, Reservation
 from robocloud.federation.overlay import ZenohOverlay
 from robocloud.fleet import MemoryRobotLink
 from robocloud.fleet.messages import Assign
-from robocloud.iaas.home import Home
+from robocloud.federation.home import Home
 from robocloud.storage import MemoryRequestStore, SqlRequestStore
 
 pytestmark = pytest.mark.slow

@@ -21,7 +21,7 @@ from robocloud.federation.messages import Dispatch, IdleQuery
 from robocloud.federation.overlay import ZenohOverlay
 from robocloud.fleet import MemoryRobotLink
 from robocloud.fleet.messages import Assign
-from robocloud.iaas.home import Home
+from robocloud.federation.home import Home
 from robocloud.storage import MemoryRequestStore
 
 pytestmark = pytest.mark.slow

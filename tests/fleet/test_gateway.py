@@ -178,7 +178,7 @@ def test_another_cloud_follows_a_borrowed_robot_behind_a_gateway(
 ) -> None:
     from robocloud.federation.overlay import ZenohOverlay
     from robocloud.fleet import MemoryRobotLink
-    from robocloud.iaas.home import Home
+    from robocloud.federation.home import Home
     from robocloud.storage import MemoryRequestStore
 
     router, _, _, simulator = cloud

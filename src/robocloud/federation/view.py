@@ -11,7 +11,7 @@ Without an overlay (``overlay=None``) the view is this cloud alone.
 
 The view remembers the homes it borrowed robots from (``lenders``): once
 this cloud is back after being away, it asks them which of its loans they
-ended meanwhile (``robocloud.iaas.home.Home.reconcile``).
+ended meanwhile (``robocloud.federation.home.Home.reconcile``).
 """
 
 from __future__ import annotations

@@ -48,7 +48,7 @@ from robocloud.fleet.link import RobotLink
 from robocloud.iaas.actor import Selector
 from robocloud.iaas.config import Settings
 from robocloud.iaas.docs_ui import install_docs
-from robocloud.iaas.home import Home, reconcile_period
+from robocloud.federation.home import Home, reconcile_period
 from robocloud.iaas.metrics import IaasMetrics
 from robocloud.iaas.models import (
     ErrorBody,

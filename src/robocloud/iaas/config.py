@@ -79,7 +79,7 @@ class Settings:
     # waits for the other clouds' idle robots.
     trusted: tuple[str, ...] = ()
     gather_timeout: float = 0.5
-    # Loans of this cloud's robots to other clouds (robocloud.iaas.home): the
+    # Loans of this cloud's robots to other clouds (robocloud.federation.home): the
     # longest lease granted until the dispatch, and how long an origin may
     # stay unreachable once its robot is idle or done before losing the loan.
     lease_max: float = 30.0

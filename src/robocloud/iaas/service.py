@@ -418,7 +418,7 @@ class RequestService:
     def loan_ended(self, request_id: str, robot: str, home: str, why: str) -> None:
         """A robot's home ended its loan to one of our requests on its own (any thread).
 
-        ``robocloud.iaas.home.OriginStatus``: maybe called twice for one loan.
+        ``robocloud.federation.home.OriginStatus``: maybe called twice for one loan.
         The request's history says so, and a robot still in its coalition is
         treated as failed (replaced, or the request fails).
         """

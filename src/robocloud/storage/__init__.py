@@ -8,7 +8,7 @@
     open_store(url)         memory://, sqlite:///FILE, postgresql+psycopg://...
 
     RequestRecord, StateChange   what the store gives back (frozen dataclasses)
-    Loan                         a robot lent to another cloud's request (robocloud.iaas.home)
+    Loan                         a robot lent to another cloud's request (robocloud.federation.home)
     StoreUnavailable             the database cannot be reached (a RoboCloudError)
 
 Layer 3: imports ``robocloud.domain`` and ``robocloud.errors`` only.

@@ -158,7 +158,7 @@ class RequestStore(Protocol):
         """
         ...
 
-    # loans: robots of this cloud lent to other clouds' requests (robocloud.iaas.home)
+    # loans: robots of this cloud lent to other clouds' requests (robocloud.federation.home)
 
     def lend(
         self,

@@ -72,7 +72,7 @@ from robocloud.domain.task import Execution
 # The robot protocol's version, MAJOR.MINOR. A new MINOR only adds optional
 # fields or values a receiver may ignore; a new MAJOR changes the meaning of a
 # message. It is in each schema's $id and served by the IaaS at /protocol.
-PROTOCOL_VERSION = "1.0"
+PROTOCOL_VERSION = "1.1"
 
 Phase = Literal["travel", "work", "done", "failed"]
 PHASES: tuple[str, ...] = ("travel", "work", "done", "failed")
@@ -95,6 +95,11 @@ class TaskProgress(BaseModel):
         description="0 to 1 over the whole task (travel and work), by time"
     )
     capabilities: list[Name] = Field(description="the capabilities the robot uses for it")
+    reason: Annotated[str, Field(max_length=300)] | None = Field(
+        None,
+        description="why the task failed, one sentence (phase failed only; protocol 1.1), "
+        "carried into the request's history",
+    )
 
 
 class State(BaseModel):

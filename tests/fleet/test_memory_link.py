@@ -76,7 +76,7 @@ def test_refusals_cancel_and_faults() -> None:
     assert failed.task.phase == "failed"
 
     link.silence("a-1")
-    assert link.assign("a-1", GO).error == "robot a-1 did not answer."
+    assert link.assign("a-1", GO).unanswered
     clock.now += 6.0
     assert {r.id: r.status for r in link.robots()} == {"a-1": "offline", "a-2": "offline"}
     link.recover("a-1")

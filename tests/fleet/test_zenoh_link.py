@@ -131,10 +131,10 @@ def test_commands_reach_the_robot_and_come_back_as_acks(
         junk = link.assign("b-junk", GO)
         assert junk.error == "robot b-junk answered something that is not an Ack."
         assert link.assign("b-err", GO).error == "robot b-err answered an error: overheated"
-        assert link.assign("b-mute", GO).error == "robot b-mute did not answer."
+        assert link.assign("b-mute", GO).unanswered
         started = time.monotonic()
         slow = link.assign("b-slow", GO)
-        assert not slow.ok and slow.error == "robot b-slow did not answer."
+        assert not slow.ok and slow.unanswered
         assert 0.25 < time.monotonic() - started < 2.0
         link.close()
     finally:
@@ -150,7 +150,7 @@ def test_a_command_to_nobody_is_not_answered_at_once(
     router, _ = network
     link = ZenohRobotLink(router, "cloud-c", command_timeout=5.0)
     started = time.monotonic()
-    assert link.assign("c-0001", GO).error == "robot c-0001 did not answer."
+    assert link.assign("c-0001", GO).unanswered
     assert time.monotonic() - started < 1.0  # no route: Zenoh ends the query at once
     link.close()
 

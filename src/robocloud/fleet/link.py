@@ -38,7 +38,6 @@ from robocloud.selection.columns import FleetColumns
 logger = logging.getLogger(__name__)
 
 StateListener = Callable[[State], None]
-NO_ANSWER = "robot {robot} did not answer."
 FORGET_AFTER = 600.0  # seconds of silence after which a robot is forgotten
 MAX_FLEET = 100_000  # robots one link follows at most
 
@@ -384,10 +383,9 @@ class ZenohRobotLink:
         )
         for reply in replies:
             return self._ack(robot_id, command.request_id, reply)
-        return Ack.refuse(robot_id, command.request_id, NO_ANSWER.format(robot=robot_id))
+        return Ack.no_answer(robot_id, command.request_id, self._timeout)
 
-    @staticmethod
-    def _ack(robot_id: str, request_id: str, reply: zenoh.Reply) -> Ack:
+    def _ack(self, robot_id: str, request_id: str, reply: zenoh.Reply) -> Ack:
         sample = reply.ok
         if sample is None:
             error = reply.err
@@ -395,7 +393,7 @@ class ZenohRobotLink:
             if detail == "Timeout":
                 # What Zenoh itself replies when the timeout passes with the
                 # query still open at the robot.
-                return Ack.refuse(robot_id, request_id, NO_ANSWER.format(robot=robot_id))
+                return Ack.no_answer(robot_id, request_id, self._timeout)
             return Ack.refuse(robot_id, request_id, f"robot {robot_id} answered an error: {detail}")
         try:
             return Ack.model_validate_json(sample.payload.to_bytes())

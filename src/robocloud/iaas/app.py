@@ -41,6 +41,7 @@ from robocloud.errors import (
     Unavailable,
     describe_validation_errors,
 )
+from robocloud.federation.home import Home, reconcile_period
 from robocloud.federation.messages import CloudInfo
 from robocloud.federation.overlay import ZenohOverlay
 from robocloud.federation.view import FederationView
@@ -48,7 +49,6 @@ from robocloud.fleet.link import RobotLink
 from robocloud.iaas.actor import Selector
 from robocloud.iaas.config import Settings
 from robocloud.iaas.docs_ui import install_docs
-from robocloud.federation.home import Home, reconcile_period
 from robocloud.iaas.metrics import IaasMetrics
 from robocloud.iaas.models import (
     ErrorBody,
@@ -169,11 +169,15 @@ def create_app(
             )
             home.lenders = view.lenders
             service = RequestService(
-                settings, the_store, view, metrics=metrics, selector=selector
+                settings,
+                the_store,
+                view,
+                metrics=metrics,
+                selector=selector,
+                home_info=home.info,
+                lent_for=home.lent_for,
             )
             metrics.observe_states(settings.cloud, service.robot_statuses, service.active_states)
-            service.home_info = home.info
-            service.lent_for = home.lent_for
             home.origin = service
             await service.start()
             stack.push_async_callback(service.stop)
@@ -705,7 +709,7 @@ class Gate:
                 service: RequestService | None = getattr(scope["app"].state, "service", None)
                 try:
                     if service is not None:
-                        service.admit()
+                        service.admission.admit()
                 except Busy as busy:
                     await _error(busy)(scope, receive, send)
                     return

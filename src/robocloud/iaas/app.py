@@ -556,7 +556,15 @@ def _routes() -> Any:
             fleets = await asyncio.to_thread(overlay.fleets)
             remote = remote_rows((f.robots for f in fleets), wanted, service.settings.cloud)
         page = build_page(
-            local, remote, after, limit, link.states(), link.ages(), held, robot_json_cache
+            local,
+            remote,
+            after,
+            limit,
+            link.states(),
+            link.ages(),
+            held,
+            robot_json_cache,
+            service.routes.aside,
         )
         etag = etag_of(page)
         headers = {

@@ -95,6 +95,11 @@ class RequestList(BaseModel):
     next: str | None = Field(None, description="cursor for the next page (`before=`)")
 
 
+class SetAsidePublic(BaseModel):
+    until: datetime = Field(description="when it may be chosen again (UTC)")
+    why: str = Field(description="the failures that set it aside")
+
+
 class RobotPublic(BaseModel):
     id: str
     cloud: str
@@ -109,6 +114,11 @@ class RobotPublic(BaseModel):
     )
     request: str | None = Field(None, description="the request the robot is reserved for")
     progress: Progress | None = None
+    set_aside: SetAsidePublic | None = Field(
+        None,
+        description="this cloud's selections do not choose the robot until `until`: it "
+        "failed requests in a row (no ack, stalled, past its expected finish)",
+    )
     seen_ago: float | None = Field(None, description="seconds since its last state message")
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from datetime import UTC, datetime
 from typing import TYPE_CHECKING, Any
 
 from robocloud.domain import Robot
@@ -13,6 +14,7 @@ from robocloud.iaas.models import (
     Progress,
     RequestPublic,
 )
+from robocloud.iaas.routes import SetAside
 from robocloud.storage import RequestRecord
 
 if TYPE_CHECKING:
@@ -71,7 +73,11 @@ def request_public(record: RequestRecord, service: RequestService) -> RequestPub
 
 
 def robot_json(
-    robot: Robot, state: State | None, age: float | None, request: str | None
+    robot: Robot,
+    state: State | None,
+    age: float | None,
+    request: str | None,
+    aside: SetAside | None = None,
 ) -> dict[str, Any]:
     """One robot of this cloud as ``RobotPublic`` puts it on the wire, as plain JSON values.
 
@@ -92,8 +98,16 @@ def robot_json(
         "capability_kinds": {n: c.kind for n, c in robot.capabilities.items()},
         "request": request,
         "progress": progress,
+        "set_aside": set_aside_json(aside),
         "seen_ago": round(age, 3) if age is not None else None,
     }
+
+
+def set_aside_json(aside: SetAside | None) -> dict[str, Any] | None:
+    if aside is None:
+        return None
+    until = datetime.fromtimestamp(aside.until, UTC).isoformat().replace("+00:00", "Z")
+    return {"until": until, "why": aside.why}
 
 
 def shown_status(status: str, request: str | None) -> str:
@@ -120,5 +134,6 @@ def remote_robot_json(data: dict[str, Any]) -> dict[str, Any]:
         "capability_kinds": {n: c["kind"] for n, c in capabilities.items()},
         "request": data.get("request"),
         "progress": progress,
+        "set_aside": None,
         "seen_ago": None,
     }

@@ -23,6 +23,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from robocloud.domain import Coalition
+from robocloud.domain.numeric import margin
 from robocloud.errors import InvalidInput
 from robocloud.selection.promethee import usual_net_flows, usual_net_flows_small
 
@@ -65,6 +66,5 @@ def within_thresholds(
     return [
         c
         for c in front
-        if c.time <= max_time + max(1e-6, 1e-9 * abs(c.time))
-        and c.cost <= max_cost + max(1e-6, 1e-9 * abs(c.cost))
+        if c.time <= max_time + margin(c.time) and c.cost <= max_cost + margin(c.cost)
     ]

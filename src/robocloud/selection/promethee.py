@@ -28,7 +28,7 @@ from typing import Literal, NamedTuple, get_args
 import numpy as np
 import numpy.typing as npt
 
-from robocloud.domain.numeric import ABS_TOL, REL_TOL
+from robocloud.domain.numeric import ABS_TOL, REL_TOL, margin_array
 
 FloatArray = npt.NDArray[np.float64]
 Preference = Literal["usual", "ushape", "vshape", "level", "vshape_2", "gaussian"]
@@ -81,7 +81,7 @@ def _threshold(x: FloatArray) -> FloatArray:
     threshold, below the resolution of a float64, and using one rule in both
     paths keeps the fast and the general path in exact agreement.
     """
-    return np.asarray(x - np.maximum(ABS_TOL, REL_TOL * np.abs(x)))
+    return np.asarray(x - margin_array(x))
 
 
 def _preference(criterion: Criterion, d: FloatArray) -> FloatArray:

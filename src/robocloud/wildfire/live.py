@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from typing import Any
 
+from robocloud.domain.request import FINAL_STATES
 from robocloud.wildfire.config import WildfireSettings
 from robocloud.wildfire.fleet_view import capability_kinds
 
@@ -37,7 +38,6 @@ ROBOT_COLUMNS = (
 )
 COLUMN = {name: i for i, name in enumerate(ROBOT_COLUMNS)}
 STATUSES = ("idle", "reserved", "busy", "charging", "offline")
-FINAL_STATES = frozenset({"completed", "rejected", "canceled", "failed"})
 # Colour-blind-safe colours (Okabe-Ito, then Tol). A cloud's colour comes from
 # its name (CRC-32), the next free one on a clash: the same on every page and
 # every load, whichever robot is heard first.

@@ -1,4 +1,4 @@
-"""One brick as a robot, without I/O: the bricks file, the battery curve, odometry, a task's life."""
+"""One brick as a robot, without I/O: the bricks file, the battery curves, odometry, a task."""
 
 from __future__ import annotations
 

@@ -16,7 +16,6 @@ from pathlib import Path
 from typing import Any
 
 from loopback_ports import free_port
-
 from robocloud.fleet.messages import Ack, Assign, Cancel, State
 from robocloud.gateways.nxt.bricks import BricksFile, parse_bricks
 from robocloud.gateways.nxt.gateway import NxtGateway

@@ -32,7 +32,7 @@ The brick's truth (docs/nxt.md):
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from robocloud.domain import RobotStatus
 from robocloud.fleet.behaviour import refuse_cancel
@@ -56,7 +56,7 @@ GRIP_AFTER = 0.25  # share of its closing an arm turns before a stop counts as a
 class Movement:
     """One thing the brick does: motors to a tacho limit, a search, or a wait."""
 
-    what: str  # for a reason: "turning towards the location", "the arm closing", ...
+    what: str  # for a reason: "turning towards the location", "closing the arm", ...
     motors: dict[int, tuple[int, int]] = field(default_factory=dict)  # port -> power, limit
     search: Search | None = None
     wait: float = 0.0
@@ -110,6 +110,7 @@ class Brick:
         )
         self.arm_angle = float(build.arm.open) if build.arm else 0.0
         self.counts: dict[int, int] | None = None  # rotation counts last read; None: none yet
+        self.pose_counts: dict[int, int] | None = None  # the counts ``odometry`` is at
         self.millivolts: int | None = None
         self.answered_at: float | None = None  # monotonic, the last reply
         self.connected = False
@@ -131,6 +132,7 @@ class Brick:
         self.connected = True
         self.answered_at = now
         self.counts = None
+        self.pose_counts = None
         self.stop_wanted = True  # whatever it was told before the link broke, stop it
         self.dirty = True
 
@@ -160,19 +162,15 @@ class Brick:
     def on_outputs(self, states: dict[int, OutputState], now: float) -> None:
         """Rotation counts read: the pose and arm advance, the movement is judged."""
         counts = {port: s.rotation_count for port, s in states.items()}
-        if self.counts is not None:
-
-            def delta(port: int) -> int:
-                if port in counts and self.counts is not None and port in self.counts:
-                    return counts[port] - self.counts[port]
-                return 0
-
-            self.odometry.advance(delta(self.left), delta(self.right))
-            if self.arm is not None:
-                self.arm_angle += delta(self.arm)
+        arm, before = self.arm, self.counts
+        if arm is not None and before is not None and arm in counts and arm in before:
+            self.arm_angle += counts[arm] - before[arm]
         self.counts = {**(self.counts or {}), **counts}
+        if self.pose_counts is None:
+            self.pose_counts = dict(self.counts)
         movement = self.movement
         if movement is None or movement.started_at is None or movement.done:
+            self._settle()  # nothing is driven: the counts are at rest
             return
         finished = True
         for port, (power, limit) in movement.motors.items():
@@ -210,6 +208,7 @@ class Brick:
         if movement.wait and now - movement.started_at < movement.wait:
             finished = False
         if finished:
+            self._settle()  # every motor at its limit: the counts are at rest
             self._movement_done(now)
         self._progress(now)
 
@@ -252,7 +251,7 @@ class Brick:
         """Start the task of ``command`` (``refuse`` said yes)."""
         if self.job is not None:
             return  # the same request again: nothing restarts
-        here = (self.odometry.x, self.odometry.y)
+        here = self.position()
         target = (command.location[0], command.location[1])
         plan: list[str | Step] = ["turn", "drive"]
         for name in command.capabilities:
@@ -320,6 +319,31 @@ class Brick:
                 movement.start_counts[port] = self.counts[port]
                 movement.last_counts[port] = self.counts[port]
 
+    def _settle(self) -> None:
+        """Dead reckoning up to the counts last read, taken while the wheels are at rest.
+
+        The two wheels are read one after the other, a few milliseconds apart
+        while they turn, which reads as a turn the brick did not make. Taken
+        between movements, each of a constant pair of wheel speeds (a turn in
+        place, a straight line), one step of ``Odometry.advance`` is exact.
+        """
+        if self.counts is None or self.pose_counts is None:
+            return
+        self.odometry.advance(*self._pending(self.counts, self.pose_counts))
+        self.pose_counts = dict(self.counts)
+
+    def _pending(self, counts: dict[int, int], since: dict[int, int]) -> tuple[int, int]:
+        left, right = self.left, self.right
+        return counts.get(left, 0) - since.get(left, 0), counts.get(right, 0) - since.get(right, 0)
+
+    def position(self) -> tuple[float, float]:
+        """Where the brick is: the settled pose, and what the wheels did since, in one step."""
+        if self.counts is None or self.pose_counts is None:
+            return self.odometry.x, self.odometry.y
+        moving = replace(self.odometry)
+        moving.advance(*self._pending(self.counts, self.pose_counts))
+        return moving.x, moving.y
+
     def movement_due(self) -> bool:
         """A movement waits to be started: the driver should not sleep first."""
         if self.movement is not None:
@@ -379,7 +403,7 @@ class Brick:
                 return None
             power = arm.power if delta > 0 else -arm.power
             return Movement(
-                f"the arm {'closing' if step.arm == 'close' else 'opening'}",
+                f"{'closing' if step.arm == 'close' else 'opening'} the arm",
                 motors={self.arm: (power, round(abs(delta)))},
                 grips=step.arm == "close",
             )
@@ -418,7 +442,7 @@ class Brick:
         travel_share = job.travel / total if total > 0 else 0.0
         if job.phase == "travel":
             whole = math.dist(job.start, job.target)
-            left = math.dist((self.odometry.x, self.odometry.y), job.target)
+            left = math.dist(self.position(), job.target)
             covered = min(max(1.0 - left / whole, 0.0), 1.0) if whole > 0 else 1.0
             value = travel_share * covered
         else:
@@ -471,7 +495,7 @@ class Brick:
             id=self.robot_id,
             cloud=cloud,
             kind=self.config.kind,
-            position=[self.odometry.x, self.odometry.y],
+            position=list(self.position()),
             speed=self.config.build.speed,
             battery=battery,
             status=self.status(now),

@@ -113,11 +113,17 @@ class BrickDriver:
     def _serve(self, link: Link) -> None:
         brick = self.brick
         battery_at = keepalive_at = self.clock()
+        cycle = 0
         while not self.stopping.is_set():
             with self.changed:
                 stop = brick.stop_wanted
                 ports = brick.ports_to_read()
                 sensor = brick.sensor_to_read()
+            cycle += 1
+            if cycle % 2:
+                # The two wheels are read one after the other; read in turn first, the
+                # lag between them (a turn of the brick it did not make) cancels out.
+                ports[0], ports[1] = ports[1], ports[0]
             if stop:
                 t.parse_status(self._ask(link, t.stop_outputs()), t.SETOUTPUTSTATE)
                 with self.changed:

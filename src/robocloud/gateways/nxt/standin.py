@@ -44,8 +44,8 @@ from robocloud.gateways.nxt.bricks import BrickConfig, load_bricks
 DEGREES_PER_POWER = 9.0  # degrees a second per percent of power
 LIGHT_AHEAD = 0.1  # metres from the brick's centre to where the light sensor looks
 RED, FLOOR = 62, 35  # percent: reflected light over a red obstacle, over the floor
-IDLE_DRAIN = 0.5  # mV a second
-MOTOR_DRAIN = 3.0  # mV a second per motor at full power
+IDLE_DRAIN = 0.1  # mV a second (an idle brick lasts hours)
+MOTOR_DRAIN = 1.0  # mV a second per motor at full power
 SLEEP_LIMIT_MS = 10 * 60 * 1000
 
 # command -> (the request's fields after the command byte, the reply's fields after the status)

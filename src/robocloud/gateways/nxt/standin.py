@@ -356,9 +356,9 @@ def add_standin_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--battery-mv",
         type=float,
-        default=8600.0,
         metavar="MV",
-        help="the battery's voltage at start, millivolts (default 8600)",
+        help="the battery's voltage at start, millivolts (default: 8600 for six AA cells, "
+        "8000 for the rechargeable pack)",
     )
     parser.add_argument(
         "--stall",
@@ -418,6 +418,8 @@ def standin_command(args: argparse.Namespace) -> int:
         )
     if not 0 < args.speedup <= 1000:
         raise InvalidInput(f"--speedup must be more than 0 and at most 1000, not {args.speedup}.")
+    if args.battery_mv is None:
+        args.battery_mv = 8600.0 if config.battery == "aa" else 8000.0
     if not 0 <= args.battery_mv <= 10_000:
         raise InvalidInput(f"--battery-mv must be 0 to 10000, not {args.battery_mv}.")
     if args.silent_after is not None and not args.silent_after >= 0:

@@ -13,6 +13,10 @@ acknowledged at once (the driver starts the movement within a cycle); a
 cancel is acknowledged once the brick is told to brake, which the driver does
 on its next cycle (tens of milliseconds).
 
+The Zenoh side is the VDA 5050 gateway's (``gateways/vda5050/zenoh_side.py``),
+which knows nothing of VDA 5050: the keys of a robot per brick, or with
+``--gateway-name`` those of a fleet gateway.
+
 Threads: a driver per brick (``driver.py``), the publisher, and Zenoh's
 (commands). One condition guards every ``Brick``; nothing is sent while it is
 held. Each thread is started by ``start`` and joined by ``stop``.

@@ -292,3 +292,18 @@ def test_a_task_away_from_the_heading_turns_first() -> None:
     bench.finish(drive)
     assert (brick.odometry.x, brick.odometry.y) == pytest.approx((8.0, 11.0), abs=0.005)
 
+
+
+def test_a_far_location_is_driven_in_legs_a_tacho_limit_can_hold() -> None:
+    bench = Bench()
+    brick = bench.brick
+    brick.take(Assign(request_id="far", location=[2508.0, 10.0], capabilities=["light"]))
+    legs = []
+    while True:
+        motors = bench.start()
+        if brick.movement is not None and brick.movement.search is not None:
+            break  # at the location: the light capability's search
+        legs.append(motors[B][1])
+        bench.finish(motors)
+    assert len(legs) == 3 and max(legs) < 2**32
+    assert brick.odometry.x == pytest.approx(2508.0, abs=0.01)

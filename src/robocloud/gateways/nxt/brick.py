@@ -47,6 +47,7 @@ SILENT_AFTER = 2.0  # seconds without an answer: the brick is offline, its task 
 FAULT_HOLD = 10.0  # seconds offline after a fault, then idle again (the next task may work)
 LINGER = 3.0  # seconds a finished task stays in ``task``
 AT_TARGET = 0.02  # metres: nearer than this, no travel
+MAX_LEG = 1000.0  # metres of one straight movement
 TURN_AT_LEAST = math.radians(1.0)  # a smaller turn is not worth a movement
 TACHO_SLACK = 1  # degrees short of a limit that count as reached
 GRIP_AFTER = 0.25  # share of its closing an arm turns before a stop counts as a grip
@@ -386,6 +387,9 @@ class Brick:
                 "turning towards the location",
                 motors={self.left: (-sign * power, limit), self.right: (sign * power, limit)},
             )
+        if distance > MAX_LEG:  # a tacho limit is 32 bits: drive far in legs
+            job.plan.insert(0, "drive")
+            distance = MAX_LEG
         limit = round(odo.degrees(distance))
         return Movement(
             "driving to the location",

@@ -71,6 +71,7 @@ class BrickDriver:
 
     def _run(self) -> None:
         robot = self.brick.robot_id
+        complained: str | None = None
         while not self.stopping.is_set():
             link: Link | None = None
             try:
@@ -85,7 +86,9 @@ class BrickDriver:
                     self.changed.notify_all()
                 self.stopping.wait(RETRY_EVERY if link is None else 0.0)
             except t.TelegramError as error:
-                log.warning("brick %s: %s; connecting again", robot, error)
+                if str(error) != complained:  # once, not every second it goes on
+                    log.warning("brick %s: %s; connecting again", robot, error)
+                    complained = str(error)
                 self.stopping.wait(RETRY_EVERY)
             except Exception:  # nothing a brick says stops its driver
                 log.exception("the driver of brick %s failed; connecting again", robot)

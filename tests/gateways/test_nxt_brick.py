@@ -85,9 +85,7 @@ def test_faults_in_the_bricks_file_are_sentences_naming_the_field() -> None:
     )
 
     def two_things(d: Any) -> None:
-        d["robots"]["nxt-tribot"]["capabilities"]["grabber"]["steps"] = [
-            {"arm": "open", "wait": 1}
-        ]
+        d["robots"]["nxt-tribot"]["capabilities"]["grabber"]["steps"] = [{"arm": "open", "wait": 1}]
 
     assert "exactly one of arm, motor, search and wait" in _broken(two_things)
 
@@ -174,8 +172,10 @@ def test_a_task_drives_to_the_location_searches_and_ends_done() -> None:
     bench = Bench()
     brick = bench.brick
     assert brick.state("c", 0.0, 1.0) is not None
-    assert brick.refuse(Assign(request_id="r1", location=[9.0, 10.0], capabilities=["light"]),
-                        0.0) is None  # fmt: skip
+    assert (
+        brick.refuse(Assign(request_id="r1", location=[9.0, 10.0], capabilities=["light"]), 0.0)
+        is None
+    )
     brick.take(Assign(request_id="r1", location=[9.0, 10.0], capabilities=["light"]))
     drive = bench.start()  # facing +x already: no turn, straight 1 m
     limit = round(1.0 / (math.pi * 0.056) * 360)
@@ -263,8 +263,10 @@ def test_commands_refused_and_cancelled_as_the_protocol_says() -> None:
     bench = Bench()
     brick = bench.brick
     light = Assign(request_id="r5", location=[12.0, 10.0], capabilities=["light"])
-    assert brick.refuse(Assign(request_id="x", location=[0.0, 0.0], capabilities=["grabber"]),
-                        0.0) == "robot nxt-base-1 lacks the capability grabber."  # fmt: skip
+    assert (
+        brick.refuse(Assign(request_id="x", location=[0.0, 0.0], capabilities=["grabber"]), 0.0)
+        == "robot nxt-base-1 lacks the capability grabber."
+    )
     brick.take(light)
     assert brick.refuse(light, 0.0) is None  # the same request again
     other = Assign(request_id="r6", location=[0.0, 0.0], capabilities=["light"])
@@ -291,7 +293,6 @@ def test_a_task_away_from_the_heading_turns_first() -> None:
     drive = bench.start()
     bench.finish(drive)
     assert (brick.odometry.x, brick.odometry.y) == pytest.approx((8.0, 11.0), abs=0.005)
-
 
 
 def test_a_far_location_is_driven_in_legs_a_tacho_limit_can_hold() -> None:

@@ -116,8 +116,9 @@ def test_a_brick_joins_works_and_its_dead_reckoning_matches_the_stand_ins_truth(
         assert math.dist(done.position, (8.0, 10.5)) < 0.02
         assign = Assign(request_id="r2", location=[9.0, 10.0], capabilities=["light"])
         assert command(side, assign).ok
-        done = side.wait(lambda s: s.task is not None and s.task.request_id == "r2"
-                         and s.task.phase == "done")  # fmt: skip
+        done = side.wait(
+            lambda s: s.task is not None and s.task.request_id == "r2" and s.task.phase == "done"
+        )
         # The search (at most 0.5 m ahead) ended on the red obstacle, seen from x = 9.1 on.
         with server.lock:
             sim.advance()
@@ -129,8 +130,9 @@ def test_a_brick_joins_works_and_its_dead_reckoning_matches_the_stand_ins_truth(
 def test_a_cancel_brakes_the_motors_at_once() -> None:
     with running() as (_, side, sim, server):
         side.wait(lambda s: s.status == "idle")
-        assert command(side, Assign(request_id="r", location=[30.0, 10.0],
-                                    capabilities=["light"])).ok  # fmt: skip
+        assert command(
+            side, Assign(request_id="r", location=[30.0, 10.0], capabilities=["light"])
+        ).ok
         side.wait(lambda s: s.task is not None and s.task.phase == "travel")
         deadline = time.monotonic() + 5
         while time.monotonic() < deadline:
@@ -154,8 +156,9 @@ def test_a_cancel_brakes_the_motors_at_once() -> None:
 def test_a_stalled_motor_fails_the_task_with_its_reason() -> None:
     with running(stalled=("C",)) as (_, side, _sim, _server):
         side.wait(lambda s: s.status == "idle")
-        assert command(side, Assign(request_id="r", location=[9.0, 10.0],
-                                    capabilities=["light"])).ok  # fmt: skip
+        assert command(
+            side, Assign(request_id="r", location=[9.0, 10.0], capabilities=["light"])
+        ).ok
         failed = side.wait(lambda s: s.task is not None and s.task.phase == "failed")
         assert failed.status == "offline"
         assert failed.task is not None

@@ -147,8 +147,11 @@ def test_the_stand_in_understands_the_products_telegrams(sim: SimBrick) -> None:
     sim.clock_value[0] += 10.0  # type: ignore[attr-defined]
     state = t.parse_output_state(answer(sim, t.get_output_state(1)))
     assert (state.port, state.tacho_limit, state.tacho_count, state.rotation_count) == (
-        1, 90, 90, 90
-    )  # fmt: skip
+        1,
+        90,
+        90,
+        90,
+    )
     assert (state.power, state.run_state) == (0, t.RUN_IDLE)  # stopped at its limit
     t.parse_status(answer(sim, t.reset_motor_position(1, relative=False)), t.RESETMOTORPOSITION)
     assert t.parse_output_state(answer(sim, t.get_output_state(1))).rotation_count == 0

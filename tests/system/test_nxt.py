@@ -51,13 +51,27 @@ class Lab:
 
     def start_brick(self, robot: str, *more: str) -> None:
         self.bricks[robot] = subprocess.Popen(
-            [sys.executable, "-m", "robocloud.cli.main", "nxt-brick", "--bricks",
-             str(self.bricks_file), "--robot", robot, "--speedup", str(SPEEDUP),
-             "--battery-mv", str(MILLIVOLTS[robot]), "--log", str(self.log_of(robot)),
-             *[arg for o in OBSTACLES for arg in ("--obstacle", o)], *more],
+            [
+                sys.executable,
+                "-m",
+                "robocloud.cli.main",
+                "nxt-brick",
+                "--bricks",
+                str(self.bricks_file),
+                "--robot",
+                robot,
+                "--speedup",
+                str(SPEEDUP),
+                "--battery-mv",
+                str(MILLIVOLTS[robot]),
+                "--log",
+                str(self.log_of(robot)),
+                *[arg for o in OBSTACLES for arg in ("--obstacle", o)],
+                *more,
+            ],
             stdout=subprocess.DEVNULL,
             stderr=open(self.workdir / f"{robot}.err", "ab"),  # noqa: SIM115
-        )  # fmt: skip
+        )
 
     def log_of(self, robot: str) -> Path:
         return self.workdir / f"{robot}.jsonl"
@@ -85,8 +99,9 @@ def lab(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Lab]:
         robot["reach"] = {"tcp": f"127.0.0.1:{free_port()}"}
     bricks_file = workdir / "bricks.json"
     bricks_file.write_text(json.dumps(data))
-    cloud = Cloud("cloud-a", workdir, f"sqlite:///{workdir / 'cloud-a.db'}", robots=0,
-                  speedup=SPEEDUP)  # fmt: skip
+    cloud = Cloud(
+        "cloud-a", workdir, f"sqlite:///{workdir / 'cloud-a.db'}", robots=0, speedup=SPEEDUP
+    )
     lab = Lab(cloud, workdir, bricks_file)
     session: zenoh.Session | None = None
     try:
@@ -94,10 +109,21 @@ def lab(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Lab]:
             lab.start_brick(robot)
         cloud.start()
         lab.gateway = subprocess.Popen(
-            [sys.executable, "-m", "robocloud.cli.main", "nxt", "--cloud", "cloud-a",
-             "--connect", cloud.zenoh, "--bricks", str(bricks_file)],
-            stdout=subprocess.DEVNULL, stderr=open(workdir / "gateway.log", "ab"),  # noqa: SIM115
-        )  # fmt: skip
+            [
+                sys.executable,
+                "-m",
+                "robocloud.cli.main",
+                "nxt",
+                "--cloud",
+                "cloud-a",
+                "--connect",
+                cloud.zenoh,
+                "--bricks",
+                str(bricks_file),
+            ],
+            stdout=subprocess.DEVNULL,
+            stderr=open(workdir / "gateway.log", "ab"),  # noqa: SIM115
+        )
         from robocloud.fleet import open_client
 
         session = open_client([cloud.zenoh], timeout=5.0)
@@ -108,8 +134,11 @@ def lab(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Lab]:
                 lab.states.setdefault(state["id"], []).append(state)
 
         session.declare_subscriber("robocloud/cloud-a/robots/*/state", on_state)
-        wait_until(lambda: len([r for r in lab.robots().values() if r["status"] == "idle"]) == 3,
-                   20, "the three bricks to join, idle")  # fmt: skip
+        wait_until(
+            lambda: len([r for r in lab.robots().values() if r["status"] == "idle"]) == 3,
+            20,
+            "the three bricks to join, idle",
+        )
         yield lab
     finally:
         if session is not None:
@@ -124,8 +153,9 @@ def lab(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Lab]:
         cloud.stop()
 
 
-def request(lab: Lab, location: list[float], sensing: dict[str, int],
-            actuating: dict[str, int]) -> str:  # fmt: skip
+def request(
+    lab: Lab, location: list[float], sensing: dict[str, int], actuating: dict[str, int]
+) -> str:
     body = {"location": location, "sensing": sensing, "actuating": actuating, **TASK}
     with lab.cloud.client() as client:
         response = client.post("/v1/requests", json=body)
@@ -174,7 +204,7 @@ def test_a_request_for_a_grabber_and_a_light_sensor_is_served_by_nxt_robots(lab:
     events = lab.events(base)
     red = [i for i, e in enumerate(events) if e["event"] == "light" and e["scaled"] > 50]
     assert red, "the search never read red"
-    brake = [e for e in events[red[0]:] if e["event"] == "motors" and e["port"] == 255]
+    brake = [e for e in events[red[0] :] if e["event"] == "motors" and e["port"] == 255]
     assert brake and brake[0]["powers"] == [0, 0, 0]
     x, y, _ = events[-1]["pose"]
     assert math.dist((x, y), (10.0, 10.0)) < 0.5  # stopped on the obstacle, not 0.5 m on
@@ -187,16 +217,23 @@ def test_a_cancel_stops_the_motors_within_a_second(lab: Lab) -> None:
     rid = request(lab, [10.0, 25.0], {"light": 1}, {})
     underway = follow_request(lab, rid, lambda r: r["state"] == "underway", "underway")
     robot = underway["coalition"][0]["robot"]
-    wait_until(lambda: any(e["event"] == "motors" and any(e["powers"])
-                           for e in lab.events(robot)[-3:]), 10, "the motors to run")  # fmt: skip
+    wait_until(
+        lambda: any(e["event"] == "motors" and any(e["powers"]) for e in lab.events(robot)[-3:]),
+        10,
+        "the motors to run",
+    )
     told = time.time()
     with lab.cloud.client() as client:
         assert client.post(f"/v1/requests/{rid}/cancel").json()["state"] == "canceled"
     stopped = wait_until(
-        lambda: [e for e in lab.events(robot) if e["at"] >= told and e["event"] == "motors"
-                 and e["powers"] == [0, 0, 0]],
-        5, "the stand-in's motors to stop",
-    )  # fmt: skip
+        lambda: [
+            e
+            for e in lab.events(robot)
+            if e["at"] >= told and e["event"] == "motors" and e["powers"] == [0, 0, 0]
+        ],
+        5,
+        "the stand-in's motors to stop",
+    )
     assert stopped[0]["at"] - told < 1.0
     wait_until(lambda: lab.robots()[robot]["status"] == "idle", 5, f"{robot} to be idle")
     assert lab.robots()[robot]["position"][1] < 24.0  # it stopped where it was
@@ -206,8 +243,11 @@ def test_a_silent_brick_is_offline_and_its_request_replanned(lab: Lab) -> None:
     rid = request(lab, [10.0, 4.0], {"light": 1}, {})
     underway = follow_request(lab, rid, lambda r: r["state"] == "underway", "underway")
     robot = underway["coalition"][0]["robot"]
-    wait_until(lambda: any(e["event"] == "motors" and any(e["powers"])
-                           for e in lab.events(robot)[-3:]), 10, "the motors to run")  # fmt: skip
+    wait_until(
+        lambda: any(e["event"] == "motors" and any(e["powers"]) for e in lab.events(robot)[-3:]),
+        10,
+        "the motors to run",
+    )
     silenced = time.monotonic()
     lab.bricks[robot].send_signal(signal.SIGSTOP)
     try:
@@ -231,8 +271,11 @@ def test_a_stalled_motor_fails_the_task_with_the_reason(lab: Lab) -> None:
     restarted = time.time()
     lab.start_brick("nxt-tribot", "--stall", "A")
     # The gateway connects again: it brakes every motor of a brick it (re)connects to.
-    wait_until(lambda: [e for e in lab.events("nxt-tribot") if e["at"] > restarted], 15,
-               "the gateway to connect to the restarted brick")  # fmt: skip
+    wait_until(
+        lambda: [e for e in lab.events("nxt-tribot") if e["at"] > restarted],
+        15,
+        "the gateway to connect to the restarted brick",
+    )
     wait_until(lambda: lab.robots()["nxt-tribot"]["status"] == "idle", 15, "the tribot back")
     rid = request(lab, [10.5, 10.5], {}, {"grabber": 1})
     done = follow_request(lab, rid, ended, "the request to end")

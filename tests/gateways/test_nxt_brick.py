@@ -308,3 +308,26 @@ def test_a_far_location_is_driven_in_legs_a_tacho_limit_can_hold() -> None:
         bench.finish(motors)
     assert len(legs) == 3 and max(legs) < 2**32
     assert brick.odometry.x == pytest.approx(2508.0, abs=0.01)
+
+
+def test_a_link_back_within_the_silence_limit_restarts_the_movement_not_the_task() -> None:
+    bench = Bench()
+    brick = bench.brick
+    brick.take(Assign(request_id="r8", location=[10.0, 10.0], capabilities=["light"]))
+    drive = bench.start()
+    bench.counts[B] += drive[B][1] // 2  # half way when the link drops
+    bench.counts[C] += drive[C][1] // 2
+    bench.now += 0.5
+    bench.read()
+    brick.on_silence(bench.now + SILENT_AFTER / 2)  # back before it counts as offline
+    brick.on_connected(bench.now + 1.0)
+    assert brick.stop_wanted and brick.job is not None
+    brick.stopped()
+    bench.now += 1.0
+    bench.read()  # the new connection's first counts: where the brick stands
+    again = bench.start()  # no turn needed: straight on, the rest of the way
+    assert again[B][1] == pytest.approx(drive[B][1] / 2, abs=2)
+    bench.now += STALL_AFTER + 0.5
+    bench.finish(again)
+    assert brick.job is not None and brick.job.phase == "travel"
+    assert brick.position() == pytest.approx((10.0, 10.0), abs=0.01)

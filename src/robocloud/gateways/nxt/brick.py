@@ -58,6 +58,7 @@ class Movement:
     """One thing the brick does: motors to a tacho limit, a search, or a wait."""
 
     what: str  # for a reason: "turning towards the location", "closing the arm", ...
+    item: str | Step  # what of the task's plan it carries out
     motors: dict[int, tuple[int, int]] = field(default_factory=dict)  # port -> power, limit
     search: Search | None = None
     wait: float = 0.0
@@ -132,10 +133,17 @@ class Brick:
         """A (new) connection answered: counts start again from the next reading."""
         self.connected = True
         self.answered_at = now
+        self._settle()  # the pose up to the last counts of the old connection
         self.counts = None
         self.pose_counts = None
         self.stop_wanted = True  # whatever it was told before the link broke, stop it
         self.dirty = True
+        movement, job = self.movement, self.job
+        if movement is not None and job is not None and not movement.done:
+            # The link dropped for less than SILENT_AFTER: the task goes on, and the
+            # movement under way starts again (braked above) from wherever it got to.
+            job.plan[:0] = ["turn", "drive"] if movement.item == "drive" else [movement.item]
+            self.movement = None
 
     def on_answer(self, now: float) -> None:
         self.answered_at = now
@@ -385,6 +393,7 @@ class Brick:
             sign = 1 if angle > 0 else -1  # counter-clockwise: the right wheel ahead
             return Movement(
                 "turning towards the location",
+                item,
                 motors={self.left: (-sign * power, limit), self.right: (sign * power, limit)},
             )
         if distance > MAX_LEG:  # a tacho limit is 32 bits: drive far in legs
@@ -393,6 +402,7 @@ class Brick:
         limit = round(odo.degrees(distance))
         return Movement(
             "driving to the location",
+            item,
             motors={self.left: (power, limit), self.right: (power, limit)},
         )
 
@@ -408,6 +418,7 @@ class Brick:
             power = arm.power if delta > 0 else -arm.power
             return Movement(
                 f"{'closing' if step.arm == 'close' else 'opening'} the arm",
+                step,
                 motors={self.arm: (power, round(abs(delta)))},
                 grips=step.arm == "close",
             )
@@ -415,6 +426,7 @@ class Brick:
             assert step.power is not None and step.degrees is not None
             return Movement(
                 f"turning motor {step.motor}",
+                step,
                 motors={OUTPUT_PORTS[step.motor]: (step.power, step.degrees)},
             )
         if step.search is not None:
@@ -422,11 +434,12 @@ class Brick:
             power = build.drive_power
             return Movement(
                 "searching with the light sensor",
+                step,
                 motors={self.left: (power, limit), self.right: (power, limit)},
                 search=step.search,
             )
         assert step.wait is not None
-        return Movement("waiting", wait=step.wait)
+        return Movement("waiting", step, wait=step.wait)
 
     def _movement_done(self, now: float) -> None:
         movement, job = self.movement, self.job

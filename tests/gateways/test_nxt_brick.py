@@ -331,3 +331,17 @@ def test_a_link_back_within_the_silence_limit_restarts_the_movement_not_the_task
     bench.finish(again)
     assert brick.job is not None and brick.job.phase == "travel"
     assert brick.position() == pytest.approx((10.0, 10.0), abs=0.01)
+
+
+def test_what_a_motor_coasts_past_its_limit_is_learned_and_taken_off_the_next() -> None:
+    bench = Bench()
+    brick = bench.brick
+    brick.take(Assign(request_id="r9", location=[8.0, 10.0], capabilities=["kicker"]))
+    close = bench.start()
+    assert close == {A: (60, 120)}
+    bench.counts[A] += 128  # 8 degrees past the limit before it came to rest
+    bench.now += 0.5
+    bench.read(RUN_IDLE)
+    assert brick.coast == {60: 8.0}
+    opening = bench.start()  # back from 128 to 0: 128 degrees, less the 8 it will coast
+    assert opening == {A: (-60, 120)}

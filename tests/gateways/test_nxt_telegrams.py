@@ -146,13 +146,10 @@ def test_the_stand_in_understands_the_products_telegrams(sim: SimBrick) -> None:
     t.parse_status(answer(sim, t.set_output_state(1, 50, tacho_limit=90)), t.SETOUTPUTSTATE)
     sim.clock_value[0] += 10.0  # type: ignore[attr-defined]
     state = t.parse_output_state(answer(sim, t.get_output_state(1)))
-    assert (state.port, state.tacho_limit, state.tacho_count, state.rotation_count) == (
-        1,
-        90,
-        90,
-        90,
-    )
-    assert (state.power, state.run_state) == (0, t.RUN_IDLE)  # stopped at its limit
+    # It stops at its limit having coasted 0.015 s of its 450 deg/s past it: 96.75 degrees.
+    assert (state.port, state.tacho_limit) == (1, 90)
+    assert (state.tacho_count, state.rotation_count) == (96, 96)
+    assert (state.power, state.run_state) == (0, t.RUN_IDLE)
     t.parse_status(answer(sim, t.reset_motor_position(1, relative=False)), t.RESETMOTORPOSITION)
     assert t.parse_output_state(answer(sim, t.get_output_state(1))).rotation_count == 0
     assert sim.answer(t.stop_outputs(reply=False))[0] is None

@@ -48,6 +48,9 @@ FAULT_HOLD = 10.0  # seconds offline after a fault, then idle again (the next ta
 LINGER = 3.0  # seconds a finished task stays in ``task``
 AT_TARGET = 0.02  # metres: nearer than this, no travel
 MAX_LEG = 1000.0  # metres of one straight movement
+ARRIVE_WITHIN = 0.05  # metres: farther from the location after driving, travel again
+MAX_CORRECTIONS = 2
+TRAVEL = ("turn", "drive", "arrive")  # the plan's items before the capabilities' steps
 TURN_AT_LEAST = math.radians(1.0)  # a smaller turn is not worth a movement
 TACHO_SLACK = 1  # degrees short of a limit that count as reached
 GRIP_AFTER = 0.25  # share of its closing an arm turns before a stop counts as a grip
@@ -79,8 +82,9 @@ class Job:
     start: tuple[float, float]
     travel: float  # seconds planned
     work: float  # seconds planned
-    plan: list[str | Step]  # "turn", "drive", then the capabilities' steps
+    plan: list[str | Step]  # "turn", "drive", "arrive", then the capabilities' steps
     steps_total: int
+    corrections: int = 0  # travel legs again because the first did not arrive
     steps_done: int = 0
     phase: Phase = "travel"
     progress: float = 0.0
@@ -126,6 +130,7 @@ class Brick:
         self.dirty = False
         self.published_at = -math.inf
         self.notes: list[str] = []  # what to log, taken by the gateway
+        self.coast: dict[int, float] = {}  # |power| -> degrees a motor turns past its limit
 
     # -- the link ----------------------------------------------------------------------
 
@@ -142,7 +147,7 @@ class Brick:
         if movement is not None and job is not None and not movement.done:
             # The link dropped for less than SILENT_AFTER: the task goes on, and the
             # movement under way starts again (braked above) from wherever it got to.
-            job.plan[:0] = ["turn", "drive"] if movement.item == "drive" else [movement.item]
+            job.plan[:0] = [*TRAVEL] if movement.item in TRAVEL else [movement.item]
             self.movement = None
 
     def on_answer(self, now: float) -> None:
@@ -182,6 +187,7 @@ class Brick:
             self._settle()  # nothing is driven: the counts are at rest
             return
         finished = True
+        overshoots: dict[int, int] = {}
         for port, (power, limit) in movement.motors.items():
             state = states.get(port)
             if state is None:
@@ -189,7 +195,17 @@ class Brick:
                 continue
             moved = abs(state.rotation_count - movement.start_counts.get(port, 0))
             reached = moved >= limit - TACHO_SLACK or (state.run_state == RUN_IDLE and moved > 0)
-            if reached or port in movement.held:
+            if port in movement.held:
+                continue
+            if reached:
+                coasting = state.rotation_count != movement.last_counts.get(port)
+                if state.run_state != RUN_IDLE and coasting and moved < 2 * limit + 90:
+                    # Past its limit and still turning: the pose is taken once it rests.
+                    movement.last_counts[port] = state.rotation_count
+                    movement.moved_at[port] = now
+                    finished = False
+                else:
+                    overshoots[abs(power)] = moved - limit
                 continue
             if state.rotation_count != movement.last_counts.get(port):
                 movement.last_counts[port] = state.rotation_count
@@ -218,6 +234,10 @@ class Brick:
             finished = False
         if finished:
             self._settle()  # every motor at its limit: the counts are at rest
+            for power, overshoot in overshoots.items():
+                if 0 <= overshoot < 360:  # how far a motor coasts at that power, learned
+                    learned = self.coast.get(power, float(overshoot))
+                    self.coast[power] = (learned + overshoot) / 2.0
             self._movement_done(now)
         self._progress(now)
 
@@ -262,7 +282,7 @@ class Brick:
             return  # the same request again: nothing restarts
         here = self.position()
         target = (command.location[0], command.location[1])
-        plan: list[str | Step] = ["turn", "drive"]
+        plan: list[str | Step] = [*TRAVEL]
         for name in command.capabilities:
             plan.extend(self.config.capabilities[name].steps)
         self.job = Job(
@@ -273,7 +293,7 @@ class Brick:
             travel=math.dist(here, target) / self.config.build.speed,
             work=command.work_time(self.config.offered()),
             plan=plan,
-            steps_total=len(plan) - 2,
+            steps_total=len(plan) - len(TRAVEL),
         )
         self.finished = None
         self.dirty = True
@@ -384,12 +404,19 @@ class Brick:
         distance = math.hypot(dx, dy)
         if distance < AT_TARGET:
             return None
+        if item == "arrive":
+            # A motor coasts past its tacho limit (a real one by some degrees): a turn
+            # that overshot sends the drive off its line. Go again from where it is.
+            if distance > ARRIVE_WITHIN and job.corrections < MAX_CORRECTIONS:
+                job.corrections += 1
+                job.plan[:0] = [*TRAVEL]
+            return None
         power = build.drive_power
         if item == "turn":
             angle = math.remainder(math.atan2(dy, dx) - odo.heading, math.tau)
             if abs(angle) < TURN_AT_LEAST:
                 return None
-            limit = round(odo.turn_degrees(angle))
+            limit = self._limit(power, odo.turn_degrees(angle))
             sign = 1 if angle > 0 else -1  # counter-clockwise: the right wheel ahead
             return Movement(
                 "turning towards the location",
@@ -399,7 +426,7 @@ class Brick:
         if distance > MAX_LEG:  # a tacho limit is 32 bits: drive far in legs
             job.plan.insert(0, "drive")
             distance = MAX_LEG
-        limit = round(odo.degrees(distance))
+        limit = self._limit(power, odo.degrees(distance))
         return Movement(
             "driving to the location",
             item,
@@ -419,7 +446,7 @@ class Brick:
             return Movement(
                 f"{'closing' if step.arm == 'close' else 'opening'} the arm",
                 step,
-                motors={self.arm: (power, round(abs(delta)))},
+                motors={self.arm: (power, self._limit(power, abs(delta)))},
                 grips=step.arm == "close",
             )
         if step.motor is not None:
@@ -427,11 +454,13 @@ class Brick:
             return Movement(
                 f"turning motor {step.motor}",
                 step,
-                motors={OUTPUT_PORTS[step.motor]: (step.power, step.degrees)},
+                motors={
+                    OUTPUT_PORTS[step.motor]: (step.power, self._limit(step.power, step.degrees))
+                },
             )
         if step.search is not None:
-            limit = round(self.odometry.degrees(step.search.max_distance))
             power = build.drive_power
+            limit = self._limit(power, self.odometry.degrees(step.search.max_distance))
             return Movement(
                 "searching with the light sensor",
                 step,
@@ -440,6 +469,10 @@ class Brick:
             )
         assert step.wait is not None
         return Movement("waiting", step, wait=step.wait)
+
+    def _limit(self, power: int, degrees: float) -> int:
+        """The tacho limit that turns a motor ``degrees``, less what it coasts past a limit."""
+        return max(1, round(degrees - self.coast.get(abs(power), 0.0)))
 
     def _movement_done(self, now: float) -> None:
         movement, job = self.movement, self.job

@@ -10,7 +10,8 @@ file describes for ``ID`` (its build, sensors, battery and start pose) on the
   Bluetooth (2-byte little-endian length).
 - **Motors**: a motor at power ``p`` turns ``DEGREES_PER_POWER * p`` degrees a
   second (900 deg/s at full power, the NXT motor's unloaded speed), times
-  ``--speedup``; it stops by itself at its tacho limit (run state IDLE).
+  ``--speedup``; it stops by itself at its tacho limit (run state IDLE),
+  having coasted ``COAST`` seconds of its speed past it, as a real one does.
   The wheels never slip: the pose follows the drive motors exactly (an arc
   for each stretch of constant powers).
 - **Sensors**: the light sensor (``LIGHT_AHEAD`` m in front of the brick)
@@ -42,6 +43,7 @@ from robocloud.errors import InvalidInput, Unavailable
 from robocloud.gateways.nxt.bricks import BrickConfig, load_bricks
 
 DEGREES_PER_POWER = 9.0  # degrees a second per percent of power
+COAST = 0.015  # seconds of its speed a motor turns past its tacho limit before it stops
 LIGHT_AHEAD = 0.1  # metres from the brick's centre to where the light sensor looks
 RED, FLOOR = 62, 35  # percent: reflected light over a red obstacle, over the floor
 IDLE_DRAIN = 0.1  # mV a second (an idle brick lasts hours)
@@ -80,18 +82,22 @@ class SimMotor:
             return 0.0
         return DEGREES_PER_POWER * self.power * speedup
 
+    def stop_at(self) -> float:
+        """Degrees from the start of the movement where the motor comes to rest."""
+        return self.limit + DEGREES_PER_POWER * abs(self.power) * COAST
+
     def time_to_limit(self, speedup: float) -> float:
         rate = self.rate(speedup)
         if rate == 0.0 or self.limit == 0:
             return math.inf
-        return max(0.0, (self.limit - abs(self.tacho)) / abs(rate))
+        return max(0.0, (self.stop_at() - abs(self.tacho)) / abs(rate))
 
     def turn(self, seconds: float, speedup: float) -> float:
         degrees = self.rate(speedup) * seconds
         self.tacho += degrees
         self.block += degrees
         self.rotation += degrees
-        if self.limit and abs(self.tacho) >= self.limit - 1e-9:
+        if self.limit and abs(self.tacho) >= self.stop_at() - 1e-9:
             self.power, self.run_state = 0, 0
         return degrees
 

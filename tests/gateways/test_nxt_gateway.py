@@ -73,11 +73,13 @@ def bricks_for(port: int) -> BricksFile:
 
 
 @contextmanager
-def running(**brick: Any) -> Iterator[tuple[NxtGateway, MemorySide, SimBrick, StandIn]]:
+def running(
+    silent_after: float | None = None, **brick: Any
+) -> Iterator[tuple[NxtGateway, MemorySide, SimBrick, StandIn]]:
     port = free_port()
     bricks = bricks_for(port)
     sim = SimBrick(bricks.robots[ROBOT], World([(9.5, 10.0, 0.3)]), speedup=10.0, **brick)
-    server = StandIn(sim, "127.0.0.1", port)
+    server = StandIn(sim, "127.0.0.1", port, silent_after=silent_after)
     serving = threading.Thread(target=server.serve_forever, daemon=True)
     serving.start()
     sides: list[MemorySide] = []
@@ -166,3 +168,14 @@ def test_a_stalled_motor_fails_the_task_with_its_reason() -> None:
         assert failed.task.reason == (
             "motor C stalled: it did not turn for 1 s at power 75 while driving to the location."
         )
+
+
+def test_a_brick_that_goes_silent_is_offline_and_its_task_failed_within_the_limit() -> None:
+    with running(silent_after=2.0) as (_, side, _sim, _server):
+        side.wait(lambda s: s.status == "idle")
+        assign = Assign(request_id="r", location=[30.0, 10.0], capabilities=["light"])
+        assert command(side, assign).ok
+        failed = side.wait(lambda s: s.task is not None and s.task.phase == "failed")
+        assert failed.status == "offline"
+        assert failed.task is not None and failed.task.reason is not None
+        assert failed.task.reason.startswith("the brick stopped answering (silent for 2.")

@@ -122,8 +122,9 @@ def run_gateway(args: argparse.Namespace, bricks: BricksFile, stop: threading.Ev
 
         with NxtGateway(robot_side, bricks):
             print(
-                f"NXT gateway: {len(bricks.robots)} bricks ({', '.join(bricks.robots)}) are "
-                f"robots of {args.cloud} at {', '.join(args.connect)}; Ctrl-C stops",
+                f"NXT gateway: {len(bricks.robots)} brick{'s' if len(bricks.robots) > 1 else ''} "
+                f"({', '.join(bricks.robots)}) as robots of {args.cloud} at "
+                f"{', '.join(args.connect)}; Ctrl-C stops",
                 file=sys.stderr,
                 flush=True,
             )

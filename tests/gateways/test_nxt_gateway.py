@@ -15,6 +15,8 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+import pytest
+
 from loopback_ports import free_port
 from robocloud.fleet.messages import Ack, Assign, Cancel, State
 from robocloud.gateways.nxt.brick import ARRIVE_WITHIN
@@ -170,6 +172,7 @@ def test_a_stalled_motor_fails_the_task_with_its_reason() -> None:
         )
 
 
+@pytest.mark.slow  # seconds of silence by design
 def test_a_brick_that_goes_silent_is_offline_and_its_task_failed_within_the_limit() -> None:
     with running(silent_after=2.0) as (_, side, _sim, _server):
         side.wait(lambda s: s.status == "idle")

@@ -21,8 +21,9 @@ $(STAMP): pyproject.toml requirements.lock
 	$(BIN)/python -m pip install --quiet --disable-pip-version-check --no-deps -e .
 	touch $(STAMP)
 
+# `make run DEMO_ARGS=--nxt` adds the thesis's NXT robots (stand-in bricks) to cloud-a.
 run: $(STAMP)
-	$(BIN)/python -m robocloud.cli.demo
+	$(BIN)/python -m robocloud.cli.demo $(DEMO_ARGS)
 
 test: $(STAMP)
 	sh tests/wildfire/ensure_chromium.sh

@@ -10,6 +10,8 @@
     robocloud wildfire --iaas URL ...     (robocloud.wildfire.command)
     robocloud robot-check --connect ENDPOINT --cloud NAME --robot ID   (robocloud.cli.robot_check)
     robocloud vda5050 --cloud NAME --connect ENDPOINT --mqtt HOST:PORT (robocloud.gateways.vda5050)
+    robocloud nxt --cloud NAME --connect ENDPOINT --bricks FILE     (robocloud.gateways.nxt)
+    robocloud nxt-brick --bricks FILE --robot ID                    (a stand-in NXT brick)
 
 ``select`` reads docs/model.md's input (a file, or ``-`` for stdin) and
 prints its output as one JSON document on stdout; its columnar reader
@@ -225,6 +227,24 @@ def build_parser() -> argparse.ArgumentParser:
     )
     add_vda5050_arguments(gateway)
     gateway.set_defaults(command=vda5050_command, command_name="vda5050")
+
+    from robocloud.gateways.nxt.command import add_nxt_arguments, nxt_command
+    from robocloud.gateways.nxt.standin import add_standin_arguments, standin_command
+
+    nxt = commands.add_parser(
+        "nxt",
+        help="make LEGO Mindstorms NXT bricks (Bluetooth direct commands) robots of a cloud",
+        description="Run the NXT gateway until interrupted.",
+    )
+    add_nxt_arguments(nxt)
+    nxt.set_defaults(command=nxt_command, command_name="nxt")
+    nxt_brick = commands.add_parser(
+        "nxt-brick",
+        help="a stand-in NXT brick on a TCP socket, for tests and users without one",
+        description="Play one brick of a bricks file: direct commands, simulated motors.",
+    )
+    add_standin_arguments(nxt_brick)
+    nxt_brick.set_defaults(command=standin_command, command_name="nxt-brick")
     return parser
 
 

@@ -41,12 +41,11 @@ from robocloud.errors import (
     Unavailable,
     describe_validation_errors,
 )
-from robocloud.federation.home import Home, reconcile_period
 from robocloud.federation.messages import CloudInfo
 from robocloud.federation.overlay import ZenohOverlay
-from robocloud.federation.view import FederationView
 from robocloud.fleet.link import RobotLink
 from robocloud.iaas.actor import Selector
+from robocloud.iaas.cloud import build_cloud
 from robocloud.iaas.config import Settings
 from robocloud.iaas.docs_ui import install_docs
 from robocloud.iaas.metrics import IaasMetrics
@@ -75,7 +74,7 @@ from robocloud.iaas.robot_list import (
     remote_rows,
 )
 from robocloud.iaas.service import REQUEST_ID, RequestService
-from robocloud.storage import RequestRecord, RequestStore, StoreUnavailable, open_store
+from robocloud.storage import RequestRecord, RequestStore, StoreUnavailable
 
 log = logging.getLogger(__name__)
 
@@ -119,74 +118,16 @@ def create_app(
     link: RobotLink | None = None,
     selector: Selector | None = None,
 ) -> FastAPI:
-    """The IaaS; ``store``, ``link`` and ``selector`` replace the real ones (for tests)."""
+    """The IaaS's HTTP API over the parts ``build_cloud`` makes (in the lifespan).
+
+    ``store``, ``link`` and ``selector`` replace the real ones (for tests).
+    """
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
-        async with contextlib.AsyncExitStack() as stack:
-            the_store = store
-            if the_store is None:
-                the_store = open_store(settings.store_url)
-                stack.callback(the_store.close)
-            the_link = link
-            session = None
-            if the_link is None:
-                from robocloud.fleet import ZenohRobotLink, open_router
-
-                security = settings.overlay_security
-                session = open_router(
-                    list(settings.zenoh_listen),
-                    list(settings.zenoh_peers),
-                    security.for_cloud(settings.cloud, settings.trusted) if security else None,
-                )
-                stack.callback(session.close)
-                the_link = ZenohRobotLink(
-                    session,
-                    settings.cloud,
-                    offline_after=settings.offline_after,
-                    command_timeout=settings.ack_timeout,
-                    forget_after=settings.forget_after,
-                    max_fleet=settings.max_fleet,
-                )
-                stack.callback(the_link.close)
-            home = Home(
-                settings.cloud,
-                the_store,
-                the_link,
-                settings.trusted,
-                api=f"http://{settings.host}:{settings.port}",
-                lease_max=settings.lease_max,
-                origin_deadline=settings.origin_deadline,
-            )
-            overlay = None
-            if session is not None and settings.federation:
-                overlay = ZenohOverlay(
-                    session, settings.cloud, home, offline_after=settings.offline_after
-                )
-                stack.callback(overlay.close)
-                home.overlay = overlay
-            view = FederationView(
-                settings.cloud, the_store, the_link, overlay, settings.gather_timeout
-            )
-            home.lenders = view.lenders
-            service = RequestService(
-                settings,
-                the_store,
-                view,
-                metrics=metrics,
-                selector=selector,
-                home_info=home.info,
-                lent_for=home.lent_for,
-            )
-            metrics.observe_states(settings.cloud, service.robot_statuses, service.active_states)
-            home.origin = service
-            await service.start()
-            stack.push_async_callback(service.stop)
-            reconciling = asyncio.ensure_future(
-                home.reconcile_forever(reconcile_period(settings.origin_deadline))
-            )
-            stack.callback(reconciling.cancel)
-            app.state.service = service
-            app.state.overlay = overlay
+        async with build_cloud(settings, metrics, store, link, selector) as cloud:
+            app.state.cloud = cloud
+            app.state.service = cloud.service
+            app.state.overlay = cloud.overlay
             yield
 
     app = FastAPI(

@@ -456,12 +456,3 @@ def standin_command(args: argparse.Namespace) -> int:
             log.close()
     return 0
 
-
-def main(argv: list[str] | None = None) -> int:
-    from robocloud.cli.main import main as robocloud
-
-    return robocloud(["nxt-brick", *(sys.argv[1:] if argv is None else argv)])
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

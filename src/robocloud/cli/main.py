@@ -20,7 +20,7 @@ few hundred MB, ``--timings`` says where the time went. ``scenario wildfire``
 writes the thesis's illustrative scenario (section 5.4) in that input shape.
 
 Every command checks all its arguments before it opens anything (a file, a
-port, a database, a Zenoh session). Exit codes, mapped in :func:`exit_code`
+port, a database, a Zenoh session). Exit codes, mapped in ``robocloud.cli.exits``
 only:
 
 - 0: done, also when no coalition is feasible (the output says why), and a
@@ -43,76 +43,38 @@ import contextlib
 import json
 import logging
 import math
-import os
 import sys
 import time
-import traceback
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from robocloud.cli.exits import (  # noqa: F401 (exit codes: re-exported)
+    EXIT_FAILED,
+    EXIT_INTERRUPTED,
+    EXIT_INVALID,
+    EXIT_OK,
+    exit_code,
+    run,
+    say,
+)
 from robocloud.cli.iaas_command import add_iaas_arguments, iaas_command
 from robocloud.cli.select_input import (  # noqa: F401 (parse_select_input: re-exported)
     check_unique_ids,
     parse_select_input,
 )
-from robocloud.errors import InvalidInput, NotFound, RoboCloudError
+from robocloud.errors import InvalidInput, NotFound
 
 if TYPE_CHECKING:
     from robocloud.domain import RobotLike
 
-EXIT_OK = 0
-EXIT_FAILED = 1
-EXIT_INVALID = 2
-EXIT_INTERRUPTED = 130
-
 STDIN = "-"
 
-Command = Callable[[argparse.Namespace], int]
-
-
-def exit_code(error: RoboCloudError) -> int:
-    """The one place where an error becomes an exit code."""
-    if isinstance(error, InvalidInput | NotFound):
-        return EXIT_INVALID
-    return EXIT_FAILED
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    command: Command = args.command
-    # getattr: a subcommand added later may have neither.
-    debug = getattr(args, "log_level", "") == "debug"
-    try:
-        return command(args)
-    except RoboCloudError as error:
-        if debug:
-            traceback.print_exc()
-        say(error.message)
-        return exit_code(error)
-    except KeyboardInterrupt:
-        return EXIT_INTERRUPTED
-    except BrokenPipeError:
-        # The reader went away (``| head``); keep Python from complaining at exit.
-        devnull = os.open(os.devnull, os.O_WRONLY)
-        os.dup2(devnull, sys.stdout.fileno())
-        return EXIT_FAILED
-    except Exception as error:  # a failure nobody foresaw: still one sentence
-        if debug:
-            traceback.print_exc()
-        first = (str(error).strip().splitlines() or [""])[0].rstrip(".")
-        name = getattr(args, "command_name", "the command")
-        say(
-            f"{name} stopped on an unexpected {type(error).__name__}"
-            f"{': ' + first if first else ''}; run it again with --log-level debug "
-            "to see where."
-        )
-        return EXIT_FAILED
-
-
-def say(message: str) -> None:
-    """The one line on stderr an error becomes, whatever the message holds."""
-    print(f"robocloud: {' '.join(message.split())}", file=sys.stderr)
+    return run(args.command, args, getattr(args, "command_name", "the command"))
 
 
 def build_parser() -> argparse.ArgumentParser:

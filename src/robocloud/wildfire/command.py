@@ -22,7 +22,8 @@ import sys
 from collections.abc import Mapping, Sequence
 from urllib.parse import urlsplit
 
-from robocloud.errors import InvalidInput, RoboCloudError
+from robocloud.cli.exits import run
+from robocloud.errors import InvalidInput
 from robocloud.wildfire.config import MAX_CURRENCY_CHARS, Forest, WildfireSettings
 
 API_KEY_ENV = "ROBOCLOUD_WILDFIRE_API_KEY"
@@ -166,13 +167,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     add_wildfire_arguments(parser)
     args = parser.parse_args(argv)
-    try:
-        return wildfire_command(args)
-    except RoboCloudError as error:
-        print(f"robocloud wildfire: {error}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        return 130
+    return run(wildfire_command, args, "robocloud wildfire")
 
 
 if __name__ == "__main__":

@@ -482,7 +482,7 @@ def test_the_tables_sort_filter_and_page(page: Any, system: System,
     for header in ("Robot", "Cloud", "Status", "Battery", "Capabilities", "Request", "ETA",
                    "Last heard"):
         expect(page.locator("#robots-table thead")).to_contain_text(header)
-    expect(robot_rows.first.locator("td[data-key='heard']")).to_have_text("live")
+    expect(robot_rows.first.locator("td[data-key='heard']")).to_have_text("within 5 s")
     page.screenshot(path=str(screenshots / "robots-table.png"))
 
 

@@ -26,19 +26,27 @@ def map_point(page: Any, x: float, y: float) -> tuple[float, float]:
 
 
 def place_fire(page: Any, x: float, y: float) -> tuple[float, float]:
-    """Click the ground near (x, y); a robot under the pointer opens its card instead, so
-    step aside until the click lands on the ground. Returns where the fire is."""
-    for attempt in range(8):
-        tx, ty = x + 35 * attempt, y - 25 * attempt
-        page.mouse.click(*map_point(page, tx, ty))
-        if page.locator("#robot-card").is_visible():
-            page.click("#robot-card-close")
-            continue
-        expect(page.locator("#fire-marker")).to_be_visible()
-        placed = (float(page.input_value("#loc-x")), float(page.input_value("#loc-y")))
-        assert placed == (pytest.approx(tx, abs=15), pytest.approx(ty, abs=15))
-        return placed
-    raise AssertionError("every click near the fire landed on a robot")
+    """Click the map at (x, y): in "Place fire" mode a click places the fire, on a robot
+    too, and opens no robot's card. Returns where the fire is."""
+    page.mouse.click(*map_point(page, x, y))
+    expect(page.locator("#fire-marker")).to_be_visible()
+    assert page.locator("#robot-card").is_hidden(), "a click meant for the fire opened a card"
+    placed = (float(page.input_value("#loc-x")), float(page.input_value("#loc-y")))
+    assert placed == (pytest.approx(x, abs=15), pytest.approx(y, abs=15))
+    return placed
+
+
+def in_view(page: Any, selector: str) -> None:
+    """``selector`` is shown whole within the window, with no scrolling."""
+    locator = page.locator(selector)
+    expect(locator).to_be_visible()
+    box = locator.bounding_box()
+    size = page.viewport_size
+    assert box is not None and size is not None
+    assert box["x"] >= -0.5 and box["y"] >= -0.5, f"{selector} starts off the window: {box}"
+    assert box["x"] + box["width"] <= size["width"] + 0.5, f"{selector} passes the right edge: {box}"
+    assert box["y"] + box["height"] <= size["height"] + 0.5, (
+        f"{selector} is below the fold of {size['width']}x{size['height']}: {box}")
 
 
 def type_fire(page: Any, x: float, y: float) -> None:

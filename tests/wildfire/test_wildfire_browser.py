@@ -20,6 +20,7 @@ from playwright.sync_api import expect
 from wildfire_browser import Console, open_page
 from wildfire_page import (
     api_post,
+    far_fire,
     fill_limits,
     in_view,
     map_point,
@@ -113,8 +114,8 @@ def test_the_main_loop_needs_no_scrolling(desktop: Any, system: System,
     expect(page.locator("#send-result")).to_contain_text("a whole number from 0 to 1,000")
     in_view(page, "#send-result")
     # An error for a fire outside the forest: whole, beside the button and beside its field.
-    want(page, {})
-    want(page, {page.locator("#caps-actuating .cap").first.get_attribute("data-cap") or "": 1})
+    capability = page.locator("#caps-actuating .cap").first.get_attribute("data-cap") or ""
+    want(page, {capability: 1})
     type_fire(page, 2500, -100)
     page.click("#send")
     expect(page.locator("#send-result")).to_have_text(re.compile(
@@ -124,7 +125,7 @@ def test_the_main_loop_needs_no_scrolling(desktop: Any, system: System,
         in_view(page, part)
 
     # Far, so the robots are still on their way when it is canceled.
-    type_fire(page, 1990, 1990)
+    type_fire(page, *far_fire(httpx.get(f"{system.url}api/robots").json(), capability))
     fill_limits(page, max_time="1000000", label=f"fits {size['width']}")
     request_id = send(page)
     state = page.locator("#state-head")
@@ -616,7 +617,7 @@ def test_the_tables_sort_filter_and_page(page: Any, system: System,
     page.screenshot(path=str(screenshots / "robots-table.png"))
 
 
-def test_the_phone_layout_has_tabs(phone_page: Any, system: System) -> None:
+def test_the_phone_layout_has_tabs(phone_page: Any, system: System, screenshots: Path) -> None:
     page = phone_page
     wait_for_fleet(page)
     width = page.evaluate("document.documentElement.scrollWidth")
@@ -627,26 +628,52 @@ def test_the_phone_layout_has_tabs(phone_page: Any, system: System) -> None:
         assert tab.bounding_box()["height"] >= 44, "each tab is big enough to tap"
     expect(page.locator("#request-form")).to_be_visible()
     expect(page.locator("#map")).to_be_hidden()
-    # Map: the forest fills the width; a tap places the fire.
+    # The Send button stays under the thumb, however long the form.
+    in_view(page, "#send")
+    # Map: the forest fills the width; a tap places the fire; no axis label is cut.
     page.click("#tabs button[data-tab='map']")
     expect(page.locator("#map")).to_be_visible()
     assert page.locator("#map").bounding_box()["width"] >= 340
     place_fire(page, 1400, 700)
+    cut = page.evaluate("""() => {
+        const map = document.getElementById("map").getBoundingClientRect();
+        return [...document.querySelectorAll("#map .grid text")].map((t) => [t.textContent,
+            t.getBoundingClientRect()]).filter(([, r]) => r.left < map.left - 0.5
+            || r.right > map.right + 0.5 || r.bottom > map.bottom + 0.5).map(([t]) => t);
+    }""")
+    assert not cut, f"axis labels cut at the map's edge: {cut}"
+    page.screenshot(path=str(screenshots / "phone-map.png"))
     page.click("#tabs button[data-tab='send']")
     fill_limits(page, max_time="100000", label="phone fire")
+    in_view(page, "#send")
     request_id = send(page)
-    # After a send the State tab shows it, its state and Cancel in the first screen.
+    # After a send the State tab shows it: its state and ETA first, Cancel in the first screen.
     expect(page.locator("#tabs button[data-tab='state']")).to_have_attribute("aria-current",
                                                                             "page")
     expect(page.locator("#state-head")).to_have_attribute("data-request", request_id)
-    for target in ("#state-badge", "#cancel"):
+    for target in ("#state-badge", "#stat-eta", "#cancel"):
         # The panel re-renders on every state change: wait until it shows, then measure.
-        expect(page.locator(target)).to_be_visible()
-        box = page.locator(target).bounding_box()
-        assert box and box["y"] + box["height"] <= 844, f"{target} is below the first screen"
+        in_view(page, target)
     assert page.locator("#cancel").bounding_box()["height"] >= 40
+    eta = page.locator("#stat-eta").bounding_box()
+    lookup = page.locator("#lookup-id").bounding_box()
+    assert eta and lookup and eta["y"] < lookup["y"], "the request comes before the id lookup"
+    page.screenshot(path=str(screenshots / "phone-state.png"))
+    # Requests: each row shows its state, robots, ETA and outcome, within the width.
     page.click("#tabs button[data-tab='requests']")
-    expect(page.locator(f"#requests-table tbody tr[data-id='{request_id}']")).to_be_visible()
+    row = page.locator(f"#requests-table tbody tr[data-id='{request_id}']")
+    expect(row).to_be_visible()
+    for key in ("state", "label", "robots", "eta", "reason"):
+        cell = row.locator(f"td[data-key='{key}']")
+        box = cell.bounding_box()
+        assert box and box["x"] >= 0 and box["x"] + box["width"] <= 390, (key, box)
+    expect(row.locator("td[data-key='robots']")).to_have_text(re.compile(r"^(\d+|–)$"))
+    for key, label in (("robots", "Robots"), ("eta", "ETA")):
+        # The column's name goes with its value, the table's head being hidden.
+        named = row.locator(f"td[data-key='{key}']").evaluate(
+            "(c) => getComputedStyle(c, '::before').content")
+        assert named == f'"{label} "', named
+    page.screenshot(path=str(screenshots / "phone-requests.png"))
     page.click("#tabs button[data-tab='state']")
     page.click("#cancel")
     page.click("#cancel-confirm")

@@ -13,7 +13,7 @@ FINAL = re.compile(r"completed|rejected|canceled|failed")
 # Where forest point (x, y) is in the map's viewBox at zoom 1 (js/map.js AREA).
 TO_PAGE = """([x, y]) => {
   const svg = document.getElementById("map");
-  const point = new DOMPoint(84 + x / 2000 * 874, 14 + (2000 - y) / 2000 * 874);
+  const point = new DOMPoint(104 + x / 2000 * 874, 14 + (2000 - y) / 2000 * 874);
   const p = point.matrixTransform(svg.getScreenCTM());
   return [p.x, p.y];
 }"""
@@ -37,16 +37,19 @@ def place_fire(page: Any, x: float, y: float) -> tuple[float, float]:
 
 
 def in_view(page: Any, selector: str) -> None:
-    """``selector`` is shown whole within the window, with no scrolling."""
-    locator = page.locator(selector)
-    expect(locator).to_be_visible()
-    box = locator.bounding_box()
-    size = page.viewport_size
-    assert box is not None and size is not None
-    assert box["x"] >= -0.5 and box["y"] >= -0.5, f"{selector} starts off the window: {box}"
-    assert box["x"] + box["width"] <= size["width"] + 0.5, f"{selector} passes the right edge: {box}"
-    assert box["y"] + box["height"] <= size["height"] + 0.5, (
-        f"{selector} is below the fold of {size['width']}x{size['height']}: {box}")
+    """``selector`` is shown whole within the window, with no scrolling (an
+    IntersectionObserver's ratio 1: neither the window nor a scrolled box cuts it)."""
+    expect(page.locator(selector)).to_be_in_viewport(ratio=1)
+
+
+def far_fire(robots: list[dict[str, Any]], capability: str) -> tuple[float, float]:
+    """A point of the forest as far as can be from every idle robot with ``capability``:
+    the robots sent there are long on their way, so a test can cancel them in time."""
+    idle = [(r["x"], r["y"]) for r in robots
+            if r["status"] == "idle" and capability in r["capabilities"]]
+    grid = [(x * FOREST / 10, y * FOREST / 10) for x in range(11) for y in range(11)]
+    return max(grid, key=lambda p: min(((p[0] - x) ** 2 + (p[1] - y) ** 2 for x, y in idle),
+                                       default=0.0))
 
 
 def type_fire(page: Any, x: float, y: float) -> None:

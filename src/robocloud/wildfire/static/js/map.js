@@ -12,7 +12,8 @@
 
 import { cloudColour, fmtAge, fmtNumber, STATUSES, svg, ticks } from "./util.js";
 
-export const AREA = { left: 84, top: 14, right: 958, bottom: 888 };  // viewBox 0 0 990 930
+// Room beside the plot for the axis labels, whole at a phone's larger font.
+export const AREA = { left: 104, top: 14, right: 978, bottom: 888 };  // viewBox 0 0 1024 930
 const SIDE = AREA.right - AREA.left;   // the plot area is square
 const MAX_ZOOM = 32;
 const DRAG_PX = 5;                     // a press that moves less is a click

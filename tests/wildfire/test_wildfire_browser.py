@@ -186,6 +186,42 @@ def test_axis_ticks_less_than_a_unit_apart_keep_the_decimals_that_tell_them_apar
                       ["0", "100", "200", "300", "400"]]
 
 
+def test_the_front_labels_the_choice_of_each_priority(page: Any) -> None:
+    """The chosen point and where the two other priorities would have chosen (the
+    request's "choices"), every point within the ticks; without "choices", the
+    chosen point alone."""
+    drawn = page.evaluate("""async () => {
+        const { drawFront } = await import("/static/js/front.js");
+        const front = [
+            { robots: ["a"], size: 1, time: 299, cost: 213.0 },
+            { robots: ["b"], size: 1, time: 707, cost: 140.2 },
+            { robots: ["c"], size: 1, time: 1158, cost: 137.81 },
+        ];
+        const request = { pareto: front, coalition: [{ robot: "b" }],
+                          task: { priority: "balanced" }, history: [],
+                          choices: { balanced: 1, time: 0, cost: 2 } };
+        const all = (plot, css) => [...plot.querySelectorAll(css)];
+        const number = (t) => Number(t.textContent.replace(/,/g, ""));
+        const read = (plot) => ({
+            labels: all(plot, "text.chosen-label, text.alt-label").map((t) => t.textContent),
+            alts: all(plot, ".alt-choice").map((d) => d.dataset.priorities),
+            times: all(plot, "text.tick-x").map(number),
+            costs: all(plot, "text.tick-y").map(number),
+        });
+        const withChoices = read(drawFront(request, { currency: "credits" }));
+        const { choices, ...without } = request;
+        return [withChoices, read(drawFront(without, { currency: "credits" }))];
+    }""")
+    with_choices, without = drawn
+    assert with_choices["labels"] == ["chosen (balanced)", "time critical would choose",
+                                      "cost critical would choose"]
+    assert with_choices["alts"] == ["time", "cost"]
+    assert min(with_choices["times"]) <= 299 and max(with_choices["times"]) >= 1158
+    assert min(with_choices["costs"]) <= 137.81 and max(with_choices["costs"]) >= 213
+    assert len(with_choices["times"]) >= 3 and len(with_choices["costs"]) >= 3
+    assert without["labels"] == ["chosen (balanced)"] and without["alts"] == []
+
+
 def test_a_request_is_dispatched_underway_and_completed(page: Any, system: System) -> None:
     wait_for_fleet(page)
     place_fire(page, 1000, 1000)
@@ -533,6 +569,18 @@ def test_zoom_pan_filter_and_robot_details(page: Any, system: System,
     expect(card).to_contain_text("Battery")
     expect(card).to_contain_text("Capabilities")
     expect(page.locator("#robot-card-note")).to_have_text(re.compile(r"^Idle: free"))
+    # A busy robot in no request of this application, an offline one: the card says what it means.
+    fleet = httpx.get(f"{system.url}api/robots").json()
+    for status, meaning in (("busy", r"^Busy for work outside this application"),
+                            ("offline", r"^Offline: out of service")):
+        # (The simulator's other users keep some robots busy, with no request of ours.)
+        pick = next(r["id"] for r in fleet if r["status"] == status and not r["request"])
+        other = page.locator(f"#map .robot[data-robot='{pick}']")
+        other.dispatch_event("pointerdown", {"pointerId": 1, "button": 0})
+        other.dispatch_event("pointerup", {"pointerId": 1, "button": 0})
+        expect(page.locator("#robot-card-title")).to_have_text(pick)
+        expect(page.locator("#robot-card-note")).to_have_text(re.compile(meaning))
+    expect(card).to_contain_text("Last heard")
     page.click("#robot-card-close")
     expect(card).to_be_hidden()
     page.click("label[for=mode-fire]")

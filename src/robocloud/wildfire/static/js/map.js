@@ -297,7 +297,7 @@ export class ForestMap {
     if (!this.fire || !this.inForest(this.fire)) return;
     const [sx, sy] = this.toScreen(this.fire);
     const label = `fire ${fmtNumber(this.fire[0])}, ${fmtNumber(this.fire[1])}`;
-    const right = sx < AREA.right - 170;
+    const right = sx < AREA.right - 250;  // room for the label at a phone's larger font
     layer.append(svg("g", { class: "fire-marker", id: "fire-marker", transform: `translate(${sx.toFixed(1)} ${sy.toFixed(1)})`,
       "data-x": this.fire[0], "data-y": this.fire[1] },
     svg("circle", { class: "fire-halo", r: 36 }),

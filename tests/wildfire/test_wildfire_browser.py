@@ -151,6 +151,13 @@ def test_the_main_loop_needs_no_scrolling(desktop: Any, system: System,
     assert page.evaluate("""() => { const t = document.getElementById("coalition");
         return t.scrollWidth <= t.parentElement.clientWidth; }"""), "the coalition is cut"
     assert_front_covers_every_point(page)
+    # Both tables fit their panel: no column is pushed out of sight.
+    for tab, table in (("requests", "#requests-table"), ("robots", "#robots-table")):
+        page.click(f"#tab-{tab}")
+        expect(page.locator(f"{table} tbody tr").first).to_be_visible()
+        assert page.evaluate("""(css) => { const t = document.querySelector(css);
+            return t.scrollWidth <= t.parentElement.clientWidth; }""", table), f"{table} is cut"
+    page.click("#tab-requests")
 
 
 def assert_front_covers_every_point(page: Any) -> None:

@@ -302,7 +302,7 @@ export class ForestMap {
       "data-x": this.fire[0], "data-y": this.fire[1] },
     svg("circle", { class: "fire-halo", r: 36 }),
     svg("use", { href: "#fire-icon", x: -24, y: -26, width: 48, height: 48 }),
-    svg("text", { class: "fire-label", x: right ? 42 : -42, y: 8, "text-anchor": right ? "start" : "end", text: label })));
+    svg("text", { class: "fire-label", x: right ? 42 : -42, y: sy > AREA.bottom - 40 ? -30 : 8, "text-anchor": right ? "start" : "end", text: label })));
   }
 
   // --- pointer, wheel and keys ------------------------------------------------

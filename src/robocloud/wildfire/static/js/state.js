@@ -66,10 +66,11 @@ export class StatePanel {
     const needs = needsText({ ...(task.actuating || {}), ...(task.sensing || {}) });
     const [maxTime] = this.robotTime(task.max_time);
     const more = [];   // below the state, the ETA and the history, scrolled in a short window
-    more.push(el("p", { class: "muted task-line",
+    // What was asked: below the coalition and the front, which matter more while it runs.
+    const taskLine = el("p", { class: "muted task-line",
       text: `Fire at ${fmtPoint(task.location)} · ${needs} · at most ${fmtNumber(task.max_robots)} robots, `
         + `${this.money(task.max_cost)}, ${maxTime} robot time · battery ≥ ${fmtNumber(task.min_battery)}% · `
-        + `${PRIORITY[task.priority] || task.priority} · ${task.execution}` }));
+        + `${PRIORITY[task.priority] || task.priority} · ${task.execution}` });
     if (request.reason) parts.push(el("p", { class: "reason", id: "state-reason", text: sentence(humanize(request.reason)) }));
 
     const coalition = request.coalition || [];
@@ -120,7 +121,7 @@ export class StatePanel {
             el("th", { class: "num", text: "Time" }), el("th", { class: "num", text: "Cost" }), el("th", { class: "progress-head", text: "Progress" }))),
           el("tbody", {}, ...rows)))));
     }
-    more.push(frontBox);
+    more.push(frontBox, taskLine);
     parts.push(el("div", { class: "state-more", id: "state-more" }, ...more));
 
     parts.push(el("div", { class: "history-box", id: "history-box" },

@@ -157,6 +157,7 @@ class LiveModel:
         self.fleet_at = 0.0
         self.endpoints: list[dict[str, Any]] = []
         self.time_scale: float | None = None
+        self.limits: dict[str, dict[str, float]] | None = None  # the task's, from the IaaS's schema
         self.alerts: deque[Alert] = deque(maxlen=MAX_ALERTS)
         self.requests: dict[str, Followed] = {}
         self._next_alert = 1
@@ -400,7 +401,8 @@ class LiveModel:
     def config_json(self) -> dict[str, Any]:
         s = self.settings
         return {"forest": s.forest.as_json(), "currency": s.currency, "time_scale": self.time_scale,
-                "stale_after": s.stale_after, "tick": s.tick, "iaas": list(s.iaas)}
+                "stale_after": s.stale_after, "tick": s.tick, "iaas": list(s.iaas),
+                "limits": self.limits}
 
     def publish(self, now: float) -> dict[str, Any]:
         """What changed since the last call, as one delta; the published state moves on."""

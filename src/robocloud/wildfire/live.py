@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from typing import Any
 
-from robocloud.domain.request import FINAL_STATES
+from robocloud.domain.request import FINAL_STATES, REQUEST_STATES
 from robocloud.wildfire.config import WildfireSettings
 from robocloud.wildfire.fleet_view import capability_kinds
 
@@ -402,7 +402,9 @@ class LiveModel:
         s = self.settings
         return {"forest": s.forest.as_json(), "currency": s.currency, "time_scale": self.time_scale,
                 "stale_after": s.stale_after, "tick": s.tick, "iaas": list(s.iaas),
-                "limits": self.limits}
+                "limits": self.limits,
+                "states": {"all": list(REQUEST_STATES),
+                           "final": [s for s in REQUEST_STATES if s in FINAL_STATES]}}
 
     def publish(self, now: float) -> dict[str, Any]:
         """What changed since the last call, as one delta; the published state moves on."""

@@ -10,7 +10,7 @@ import { Sender } from "./sender.js";
 import { requestName, StatePanel } from "./state.js";
 import { REQUESTS_PER_PAGE, RequestsTable, RobotsTable } from "./tables.js";
 import {
-  $, el, FINAL_STATES, fmtAge, fmtClock, fmtDuration, fmtNumber, humanize, REQUEST_STATES, sentence,
+  $, el, FINAL_STATES, fmtAge, fmtClock, fmtDuration, fmtNumber, humanize, REQUEST_STATES, sentence, setStates,
   setCloudColours, STATUSES,
 } from "./util.js";
 
@@ -132,6 +132,10 @@ function applyConfig() {
   form.setForest(config.forest);
   form.setUnits(config.currency, live.timeScale());
   form.setLimits(config.limits);
+  if (!REQUEST_STATES.length) {
+    setStates(config.states);
+    for (const s of REQUEST_STATES) $("requests-state").append(el("option", { value: s, text: s }));
+  }
   const f = config.forest;
   $("forest-hint").textContent = `The forest: x ${fmtNumber(f.x0)}–${fmtNumber(f.x1)}, y ${fmtNumber(f.y0)}–${fmtNumber(f.y1)} m.`;
   const clock = $("clock-scale");
@@ -368,7 +372,6 @@ async function loadRequests() {
   }
 }
 
-for (const s of REQUEST_STATES) $("requests-state").append(el("option", { value: s, text: s }));
 $("requests-state").addEventListener("change", () => {
   page.requestsQuery = { state: $("requests-state").value, cursors: [""], index: 0, next: null };
   loadRequests();

@@ -135,9 +135,18 @@ export function humanize(text) {
   return String(text || "").replace(/\b(max_time|max_cost|max_robots|min_battery)\b/g, (name) => FIELD_NAMES[name]);
 }
 
-export const FINAL_STATES = new Set(["completed", "rejected", "canceled", "failed"]);
-export const ACTIVE_STATES = ["received", "selecting", "dispatched", "underway"];
-export const REQUEST_STATES = [...ACTIVE_STATES, "completed", "rejected", "canceled", "failed"];
+// A request's states, from the server's config (robocloud.domain.request, the one
+// source): filled in place by setStates, so every module's import sees them.
+export const FINAL_STATES = new Set();
+export const ACTIVE_STATES = [];
+export const REQUEST_STATES = [];
+
+export function setStates(states) {
+  if (!states || REQUEST_STATES.length) return;
+  REQUEST_STATES.push(...states.all);
+  ACTIVE_STATES.push(...states.all.filter((s) => !states.final.includes(s)));
+  for (const s of states.final) FINAL_STATES.add(s);
+}
 export const STATUSES = ["idle", "reserved", "busy", "charging", "offline"];
 export const PRIORITY = { balanced: "balanced", time: "time critical", cost: "cost critical" };
 

@@ -18,7 +18,13 @@ from hypothesis import strategies as st
 from robocloud.domain import Coalition
 from robocloud.domain.numeric import isclose, tolerance
 from robocloud.errors import InvalidInput
-from robocloud.selection.choice import CHOICE_WEIGHTS, choice_flows, choices, choose
+from robocloud.selection.choice import (
+    CHOICE_WEIGHTS,
+    choice_flows,
+    choices,
+    choose,
+    choose_index,
+)
 from robocloud.selection.promethee import Criterion, flows
 
 
@@ -198,6 +204,9 @@ def test_random_fronts_against_the_definition(front: list[Coalition], priority: 
     ]
     key = (chosen.cost, chosen.time, chosen.size, chosen.robots)
     assert all(key <= (c.cost, c.time, c.size, c.robots) for c in surely_tied)
+    # The API's choices (one scaling for the three priorities) agree.
+    every = choices(front)
+    assert every is not None and every[priority] == choose_index(front, priority)
 
 
 @settings(max_examples=100, deadline=None)

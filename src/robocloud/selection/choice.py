@@ -31,7 +31,11 @@ from collections.abc import Sequence
 from robocloud.domain import Coalition
 from robocloud.domain.numeric import isclose
 from robocloud.errors import InvalidInput
-from robocloud.selection.promethee import range_vshape_net_flows
+from robocloud.selection.promethee import (
+    range_vshape_net_flows,
+    range_vshape_parts,
+    weighted_parts,
+)
 
 # (T, C, N) weights per priority, as MODEL.md fixes them.
 CHOICE_WEIGHTS: dict[str, tuple[float, float, float]] = {
@@ -53,18 +57,12 @@ def weights_of(priority: str) -> tuple[float, float, float]:
 
 def choice_flows(front: Sequence[Coalition], priority: str = "balanced") -> list[float]:
     """phi of each member of the front, as the choice for ``priority`` weighs it."""
-    rows = [(c.time, c.cost, float(c.size)) for c in front]
-    return range_vshape_net_flows(rows, weights_of(priority))
+    return range_vshape_net_flows(_rows(front), weights_of(priority))
 
 
 def choose_index(front: Sequence[Coalition], priority: str = "balanced") -> int | None:
     """The index in ``front`` of the coalition ``priority`` chooses; None for no front."""
-    phi = choice_flows(front, priority)
-    if not phi:
-        return None
-    best = max(phi)
-    tied = [i for i, f in enumerate(phi) if isclose(f, best)]
-    return min(tied, key=lambda i: _tie_key(front[i]))
+    return _best(front, choice_flows(front, priority))
 
 
 def choose(front: Sequence[Coalition], priority: str = "balanced") -> Coalition | None:
@@ -76,16 +74,30 @@ def choices(front: Sequence[Coalition]) -> dict[str, int] | None:
     """priority -> the index in ``front`` of what that priority chooses (None: no front).
 
     What the API shows beside a request's front, so a user sees where the
-    other priorities would have chosen.
+    other priorities would have chosen. The three share one scaling of the front.
     """
     if not front:
         return None
+    parts = range_vshape_parts(_rows(front), 3)
     out: dict[str, int] = {}
-    for priority in CHOICE_WEIGHTS:
-        index = choose_index(front, priority)
+    for priority, weights in CHOICE_WEIGHTS.items():
+        index = _best(front, weighted_parts(parts, weights, len(front)))
         assert index is not None  # a front that is not empty always has a choice
         out[priority] = index
     return out
+
+
+def _rows(front: Sequence[Coalition]) -> list[tuple[float, float, float]]:
+    return [(c.time, c.cost, float(c.size)) for c in front]
+
+
+def _best(front: Sequence[Coalition], phi: Sequence[float]) -> int | None:
+    """The highest phi; ties (equal under MODEL.md's tolerance) by C, T, N, ids."""
+    if not phi:
+        return None
+    best = max(phi)
+    tied = [i for i, f in enumerate(phi) if isclose(f, best)]
+    return min(tied, key=lambda i: _tie_key(front[i]))
 
 
 def _tie_key(c: Coalition) -> tuple[float, float, int, tuple[str, ...]]:

@@ -180,23 +180,45 @@ def range_vshape_net_flows(
     the smallest ``sum_j w_j h_j``. Weights are normalised by their sum, as in
     ``flows``; the tests check this against the pairwise definition.
     """
-    n, total = len(rows), sum(weights)
-    if n == 0:
-        return []
-    if n == 1:
-        return [0.0]
-    w = [x / total for x in weights]
+    return weighted_parts(range_vshape_parts(rows, len(weights)), weights, len(rows))
+
+
+def weighted_parts(
+    parts: Sequence[Sequence[float] | None], weights: Sequence[float], n: int
+) -> list[float]:
+    """phi from ``range_vshape_parts``, the weights normalised by their sum."""
+    total = sum(weights)
     phi = [0.0] * n
-    for j, weight in enumerate(w):
+    for weight, part in zip(weights, parts, strict=True):
+        if weight and part is not None:
+            share = weight / total
+            for a, value in enumerate(part):
+                phi[a] += share * value
+    return phi
+
+
+def range_vshape_parts(
+    rows: Sequence[Sequence[float]], width: int
+) -> list[list[float] | None]:
+    """Each criterion's share of phi before its weight: ``(H_j - n h_j(a)) / (n - 1)``.
+
+    None for a criterion whose range is 0 (it counts for nothing). Several
+    weightings of one front (``robocloud.selection.choice.choices``) share them.
+    """
+    n = len(rows)
+    parts: list[list[float] | None] = []
+    if n < 2:
+        return [None] * width  # one alternative (or none): every flow is 0
+    for j in range(width):
         column = [row[j] for row in rows]
         lo, hi = min(column), max(column)
-        if weight == 0.0 or isclose(lo, hi):
-            continue  # a range of 0 (within the tolerance) counts for nothing
+        if isclose(lo, hi):
+            parts.append(None)
+            continue
         h = [(x - lo) / (hi - lo) for x in column]
         total_h = sum(h)
-        for a in range(n):
-            phi[a] += weight * (total_h - n * h[a]) / (n - 1)
-    return phi
+        parts.append([(total_h - n * value) / (n - 1) for value in h])
+    return parts
 
 
 def flows(

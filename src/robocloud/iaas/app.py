@@ -46,8 +46,10 @@ from robocloud.federation.overlay import ZenohOverlay
 from robocloud.federation.view import FederationView
 from robocloud.fleet.link import RobotLink
 from robocloud.iaas.actor import Selector
+from robocloud.iaas.capabilities import KnownCapabilities
 from robocloud.iaas.config import Settings
 from robocloud.iaas.docs_ui import install_docs
+from robocloud.iaas.elsewhere import Elsewhere
 from robocloud.federation.home import Home, reconcile_period
 from robocloud.iaas.metrics import IaasMetrics
 from robocloud.iaas.models import (
@@ -183,6 +185,8 @@ def create_app(
             stack.callback(reconciling.cancel)
             app.state.service = service
             app.state.overlay = overlay
+            app.state.capabilities = KnownCapabilities(home.announced, the_link.robots, overlay)
+            app.state.elsewhere = Elsewhere(overlay)
             yield
 
     app = FastAPI(
@@ -311,15 +315,27 @@ ROBOT_PAGE_HEADERS = {
 RequestId = Annotated[str, Path(description="a request's id, e.g. req-abcdefgh2345")]
 
 
+async def capabilities_of(request: Request) -> KnownCapabilities:
+    known: KnownCapabilities = request.app.state.capabilities
+    return known
+
+
+async def elsewhere_of(request: Request) -> Elsewhere:
+    elsewhere: Elsewhere = request.app.state.elsewhere
+    return elsewhere
+
+
 Service = Annotated[RequestService, Depends(service_of)]
 Application = Annotated[str, Depends(application_of)]
+Capabilities = Annotated[KnownCapabilities, Depends(capabilities_of)]
+Federation = Annotated[Elsewhere, Depends(elsewhere_of)]
 
 
 async def existing_request(
-    request_id: RequestId, service: Service, application: Application
+    request_id: RequestId, service: Service, application: Application, federation: Federation
 ) -> RequestRecord:
     """The application's request, or 404 (as a dependency: before a stream starts)."""
-    return await service.get(application, request_id)
+    return await federation.here(service.get(application, request_id), request_id)
 
 
 OwnedRequest = Annotated[RequestRecord, Depends(existing_request)]
@@ -369,6 +385,7 @@ def _routes() -> Any:
         body: RequestCreate,
         service: Service,
         application: Application,
+        known: Capabilities,
         response: Response,
         idempotency_key: Annotated[
             str | None,
@@ -381,6 +398,7 @@ def _routes() -> Any:
         ] = None,
     ) -> RequestPublic:
         """Send a task; robocloud selects, reserves and dispatches a coalition for it."""
+        await known.check(body)
         record = await service.submit(application, body.task(), body.label, idempotency_key)
         response.headers["Location"] = f"/v1/requests/{record.id}"
         return request_public(record, service)
@@ -422,9 +440,10 @@ def _routes() -> Any:
         responses=answers(401, 404, 503),
     )
     async def get_request(
-        request_id: RequestId, service: Service, application: Application
+        request_id: RequestId, service: Service, application: Application, federation: Federation
     ) -> RequestPublic:
-        return request_public(await service.get(application, request_id), service)
+        record = await federation.here(service.get(application, request_id), request_id)
+        return request_public(record, service)
 
     @api.post(
         "/v1/requests/{request_id}/cancel",
@@ -435,10 +454,11 @@ def _routes() -> Any:
         responses=answers(401, 404, 409, 503),
     )
     async def cancel_request(
-        request_id: RequestId, service: Service, application: Application
+        request_id: RequestId, service: Service, application: Application, federation: Federation
     ) -> RequestPublic:
         """Cancel a request that is not finished: every robot stops and is released."""
-        return request_public(await service.cancel(application, request_id), service)
+        record = await federation.here(service.cancel(application, request_id), request_id)
+        return request_public(record, service)
 
     @api.get(
         "/v1/requests/{request_id}/events",

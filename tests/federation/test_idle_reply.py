@@ -13,9 +13,9 @@ import pytest
 from federation_testing import clouds, robot
 
 from robocloud.domain import Robot, Task
+from robocloud.federation.home import Home
 from robocloud.federation.messages import IdleQuery, IdleReply, decode_idle_reply
 from robocloud.fleet import MemoryRobotLink
-from robocloud.federation.home import Home
 from robocloud.storage import MemoryRequestStore
 
 QUERY = IdleQuery(origin="cloud-a", capabilities=["grabber"])

@@ -17,11 +17,11 @@ import pytest
 from federation_testing import robot, zenoh_pair
 
 from robocloud.errors import RoboCloudError
+from robocloud.federation.home import Home
 from robocloud.federation.messages import Dispatch, IdleQuery
 from robocloud.federation.overlay import ZenohOverlay
 from robocloud.fleet import MemoryRobotLink
 from robocloud.fleet.messages import Assign
-from robocloud.federation.home import Home
 from robocloud.storage import MemoryRequestStore
 
 pytestmark = pytest.mark.slow

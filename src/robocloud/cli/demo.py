@@ -39,6 +39,7 @@ from typing import IO
 
 import httpx
 
+from robocloud.cli.logfile import RotatingLog
 from robocloud.sim.scenario import MAX_CLOUDS, cloud_names
 
 WILDFIRE = "wildfire"
@@ -82,18 +83,23 @@ class Part:
     process: subprocess.Popen[bytes] | None = None
     reported: bool = False
 
+    sink: RotatingLog | None = None  # the log file, opened at the first start
+
     def start(self) -> None:
-        with open(self.log, "ab") as log:
-            self.process = subprocess.Popen(
-                [sys.executable, "-m", "robocloud.cli.main", *self.argv],
-                stdin=subprocess.DEVNULL,
-                stdout=log,
-                stderr=subprocess.STDOUT,
-                env={**os.environ, **self.env},
-                # Its own session: Ctrl-C in the terminal reaches the demo only,
-                # which then stops every part in order.
-                start_new_session=True,
-            )
+        if self.sink is None:
+            self.sink = RotatingLog(self.log)
+        self.process = subprocess.Popen(
+            [sys.executable, "-m", "robocloud.cli.main", *self.argv],
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            env={**os.environ, **self.env},
+            # Its own session: Ctrl-C in the terminal reaches the demo only,
+            # which then stops every part in order.
+            start_new_session=True,
+        )
+        assert self.process.stdout is not None
+        self.sink.follow(self.process.stdout, f"log-{self.group}-{self.argv[0]}")
         self.reported = False
 
     @property
@@ -435,6 +441,9 @@ def _stop_all(parts: list[Part]) -> None:
         except subprocess.TimeoutExpired:
             process.kill()
             process.wait()
+    for part in parts:
+        if part.sink is not None:
+            part.sink.close()
 
 
 def _banner(

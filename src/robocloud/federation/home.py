@@ -38,6 +38,7 @@ from datetime import datetime, timedelta
 
 from robocloud.domain import Robot, is_final
 from robocloud.errors import RoboCloudError
+from robocloud.federation.capabilities import Announced
 from robocloud.federation.messages import (
     MAX_ITEMS,
     CloudInfo,
@@ -126,6 +127,8 @@ class Home:
         self.link = link
         self.trusted = set(trusted) if trusted else None  # None: every cloud
         self.api = api
+        # The capability names this cloud's robots have announced (its CloudInfo says them).
+        self.announced = Announced()
         self.lease_max = lease_max
         self.origin_deadline = origin_deadline
         # The robots working for one of this cloud's requests now (the IaaS's
@@ -162,8 +165,14 @@ class Home:
         held = self.store.reservations()
         idle = sum(r.status == "idle" and r.id not in held for r in robots)
         offline = sum(r.status == "offline" for r in robots)
+        self.announced.learn_robots(robots)
         return CloudInfo(
-            cloud=self.cloud, robots=len(robots), idle=idle, offline=offline, api=self.api
+            cloud=self.cloud,
+            robots=len(robots),
+            idle=idle,
+            offline=offline,
+            api=self.api,
+            capabilities=self.announced.names(),
         )
 
     def idle_robots(self, query: IdleQuery) -> bytes:

@@ -45,9 +45,11 @@ from robocloud.federation.messages import CloudInfo
 from robocloud.federation.overlay import ZenohOverlay
 from robocloud.fleet.link import RobotLink
 from robocloud.iaas.actor import Selector
+from robocloud.iaas.capabilities import KnownCapabilities
 from robocloud.iaas.cloud import build_cloud
 from robocloud.iaas.config import Settings
 from robocloud.iaas.docs_ui import install_docs
+from robocloud.iaas.elsewhere import Elsewhere
 from robocloud.iaas.metrics import IaasMetrics
 from robocloud.iaas.models import (
     ErrorBody,
@@ -128,6 +130,8 @@ def create_app(
             app.state.cloud = cloud
             app.state.service = cloud.service
             app.state.overlay = cloud.overlay
+            app.state.capabilities = cloud.capabilities
+            app.state.elsewhere = cloud.elsewhere
             yield
 
     app = FastAPI(
@@ -256,15 +260,27 @@ ROBOT_PAGE_HEADERS = {
 RequestId = Annotated[str, Path(description="a request's id, e.g. req-abcdefgh2345")]
 
 
+async def capabilities_of(request: Request) -> KnownCapabilities:
+    known: KnownCapabilities = request.app.state.capabilities
+    return known
+
+
+async def elsewhere_of(request: Request) -> Elsewhere:
+    elsewhere: Elsewhere = request.app.state.elsewhere
+    return elsewhere
+
+
 Service = Annotated[RequestService, Depends(service_of)]
 Application = Annotated[str, Depends(application_of)]
+Capabilities = Annotated[KnownCapabilities, Depends(capabilities_of)]
+Federation = Annotated[Elsewhere, Depends(elsewhere_of)]
 
 
 async def existing_request(
-    request_id: RequestId, service: Service, application: Application
+    request_id: RequestId, service: Service, application: Application, federation: Federation
 ) -> RequestRecord:
     """The application's request, or 404 (as a dependency: before a stream starts)."""
-    return await service.get(application, request_id)
+    return await federation.here(service.get(application, request_id), request_id)
 
 
 OwnedRequest = Annotated[RequestRecord, Depends(existing_request)]
@@ -314,6 +330,7 @@ def _routes() -> Any:
         body: RequestCreate,
         service: Service,
         application: Application,
+        known: Capabilities,
         response: Response,
         idempotency_key: Annotated[
             str | None,
@@ -326,6 +343,7 @@ def _routes() -> Any:
         ] = None,
     ) -> RequestPublic:
         """Send a task; robocloud selects, reserves and dispatches a coalition for it."""
+        await known.check(body)
         record = await service.submit(application, body.task(), body.label, idempotency_key)
         response.headers["Location"] = f"/v1/requests/{record.id}"
         return request_public(record, service)
@@ -367,9 +385,10 @@ def _routes() -> Any:
         responses=answers(401, 404, 503),
     )
     async def get_request(
-        request_id: RequestId, service: Service, application: Application
+        request_id: RequestId, service: Service, application: Application, federation: Federation
     ) -> RequestPublic:
-        return request_public(await service.get(application, request_id), service)
+        record = await federation.here(service.get(application, request_id), request_id)
+        return request_public(record, service)
 
     @api.post(
         "/v1/requests/{request_id}/cancel",
@@ -380,10 +399,11 @@ def _routes() -> Any:
         responses=answers(401, 404, 409, 503),
     )
     async def cancel_request(
-        request_id: RequestId, service: Service, application: Application
+        request_id: RequestId, service: Service, application: Application, federation: Federation
     ) -> RequestPublic:
         """Cancel a request that is not finished: every robot stops and is released."""
-        return request_public(await service.cancel(application, request_id), service)
+        record = await federation.here(service.cancel(application, request_id), request_id)
+        return request_public(record, service)
 
     @api.get(
         "/v1/requests/{request_id}/events",

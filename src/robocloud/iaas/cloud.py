@@ -34,7 +34,9 @@ from robocloud.federation.reconcile import LoanReconciler, reconcile_period
 from robocloud.federation.view import FederationView
 from robocloud.fleet.link import RobotLink
 from robocloud.iaas.actor import Selector
+from robocloud.iaas.capabilities import KnownCapabilities
 from robocloud.iaas.config import Settings
+from robocloud.iaas.elsewhere import Elsewhere
 from robocloud.iaas.metrics import IaasMetrics
 from robocloud.iaas.routes import RobotRoutes
 from robocloud.iaas.service import RequestService
@@ -54,6 +56,8 @@ class Cloud:
     view: FederationView
     service: RequestService
     reconciler: LoanReconciler
+    capabilities: KnownCapabilities  # every capability the federation announced
+    elsewhere: Elsewhere  # which other cloud holds a request
 
 
 @contextlib.asynccontextmanager
@@ -126,5 +130,15 @@ async def build_cloud(
         )
         stack.callback(reconciling.cancel)
         yield Cloud(
-            settings, store, link, routes, home, overlay, view, service, reconciler
+            settings,
+            store,
+            link,
+            routes,
+            home,
+            overlay,
+            view,
+            service,
+            reconciler,
+            KnownCapabilities(home.announced, link.robots, overlay),
+            Elsewhere(overlay),
         )

@@ -85,6 +85,11 @@ class RequestPublic(BaseModel):
         None, description="the point of the Pareto front the selection chose"
     )
     pareto: list[FrontMember] = Field(default_factory=list)
+    choices: dict[Literal["balanced", "time", "cost"], int] | None = Field(
+        None,
+        description="priority -> the index in `pareto` of the member that priority would "
+        "choose (docs/model.md, The choice); null when there is no front",
+    )
     optimizer: str | None = None
     selection_ms: float | None = None
     history: list[HistoryEntry]
@@ -106,7 +111,7 @@ class RobotPublic(BaseModel):
     kind: str | None = None
     position: list[float]
     speed: float
-    battery: float
+    battery: float = Field(description="percent, rounded to 0.1")
     status: str
     capabilities: list[str]
     capability_kinds: dict[str, str] = Field(

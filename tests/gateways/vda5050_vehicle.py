@@ -90,6 +90,7 @@ class Vehicle:
         battery: float = 90.0,
         log: Path | None = None,
         ignore_orders: bool = False,
+        keepalive: int = 2,
     ) -> None:
         self.base = f"{interface}/v2/{manufacturer}/{serial}"
         self.manufacturer, self.serial = manufacturer, serial
@@ -125,7 +126,7 @@ class Vehicle:
         )
         self.client.on_message = self._on_message
         self.client.on_connect = self._on_connect
-        self.client.connect(host, port, keepalive=2)
+        self.client.connect(host, port, keepalive=keepalive)
         self.client.loop_start()
         self.thread = threading.Thread(target=self._run, daemon=True)
         self.thread.start()
@@ -357,11 +358,13 @@ def main() -> None:
     parser.add_argument("--port", type=int, default=1883)
     parser.add_argument("--log", type=Path)
     parser.add_argument("--ignore-orders", action="store_true")
+    parser.add_argument("--keepalive", type=int, default=2, help="MQTT keep-alive, seconds")
     args = parser.parse_args()
     vehicle = Vehicle(
         args.interface, args.manufacturer, args.serial, (args.x, args.y),
         args.actions.split(","), port=args.port, speed=args.speed,
         action_time=args.action_time, log=args.log, ignore_orders=args.ignore_orders,
+        keepalive=args.keepalive,
     )  # fmt: skip
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())

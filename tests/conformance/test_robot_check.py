@@ -67,7 +67,8 @@ def client_session(endpoint: str) -> zenoh.Session:
 
 def check_in_process(endpoint: str, robot: str, **options: Any) -> dict[str, Result]:
     """Start the kit (its router) first, then hand it the robot started by the caller."""
-    return by_rule(RobotCheck(endpoint, "cloud-a", robot, join_timeout=10.0, **options).run())
+    options = {"join_timeout": 10.0, **options}
+    return by_rule(RobotCheck(endpoint, "cloud-a", robot, **options).run())
 
 
 def run_with_robot(robot_class: type, **options: Any) -> dict[str, Result]:
@@ -178,7 +179,7 @@ def test_a_robot_that_acks_late_fails_the_late_ack_rule() -> None:
 
 def test_a_robot_that_omits_a_required_field_fails_the_state_rule_named_by_field() -> None:
     NoKindRobot.heard_errors = []
-    results = run_with_robot(NoKindRobot, outage=0.5)
+    results = run_with_robot(NoKindRobot, outage=0.5, join_timeout=3.0)
     schema = results["state-schema"]
     assert not schema.passed
     assert "the first: kind is missing." in schema.sentence
@@ -229,7 +230,7 @@ class NeverFinishingRobot(DeafRobot):
 
 def test_a_robot_whose_battery_is_a_string_fails_the_schema_rule() -> None:
     StringBatteryRobot.heard_errors = []
-    results = run_with_robot(StringBatteryRobot, outage=0.5)
+    results = run_with_robot(StringBatteryRobot, outage=0.5, join_timeout=3.0)
     schema = results["state-schema"]
     assert not schema.passed
     assert 'the first: battery: "80" is not of type "number" (state.schema.json).' in (

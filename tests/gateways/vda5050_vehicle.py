@@ -204,10 +204,11 @@ class Vehicle:
     def publish_state(self) -> None:
         if self.stop.is_set():
             return  # frozen, or leaving
-        state = self.state()
-        problems = schema_errors("state", state)
-        assert not problems, problems  # the test vehicle itself keeps to the schema
-        self.client.publish(f"{self.base}/state", json.dumps(state), qos=0)
+        with self.lock:  # numbered and sent in one go: two threads publish, in order
+            state = self.state()
+            problems = schema_errors("state", state)
+            assert not problems, problems  # the test vehicle itself keeps to the schema
+            self.client.publish(f"{self.base}/state", json.dumps(state), qos=0)
 
     # -- messages in -------------------------------------------------------------------
 

@@ -323,6 +323,8 @@ class Agv:
         vda, job = self.vda, self.job
         if vda is None or not vda.orderId or not under_way(vda):
             return
+        if self.connection in BROKEN or now - self.heard_at > self.silent_after():
+            return  # it would not hear a cancel; its next state, if any, brings this back
         order = vda.orderId
         if job is not None and order == job.order_id:
             return

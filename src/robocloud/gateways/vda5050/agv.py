@@ -57,6 +57,7 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass, field
+from typing import TypeVar
 
 from robocloud.domain import Capability, RobotStatus
 from robocloud.domain.robot import MAX_COORDINATE, MAX_SPEED, MIN_SPEED, NAME_PATTERN
@@ -71,7 +72,9 @@ from robocloud.gateways.vda5050.messages import (
     VdaState,
 )
 
+T = TypeVar("T")
 CANCEL_AGAIN = 2.0  # seconds between two cancelOrders of one order the AGV keeps at
+REMEMBERED = 64  # orders sent, and cancels, remembered per AGV (the newest)
 LINGER = 3.0  # seconds a finished task stays in the robot's task
 UNDER_WAY = frozenset({"WAITING", "INITIALIZING", "RUNNING", "PAUSED"})
 AUTOMATIC = frozenset({"AUTOMATIC", "SEMIAUTOMATIC"})
@@ -97,8 +100,9 @@ class Timing:
     max_silence: float = 30.0  # ... and at most this long (VDA 5050: a state every 30 s)
 
     def silent_after(self, interval: float | None) -> float:
-        usable = interval is not None and 0 < interval < math.inf
-        every = interval if usable and interval is not None else self.state_interval
+        every = (
+            interval if interval is not None and 0 < interval < math.inf else self.state_interval
+        )
         return min(self.silent_intervals * every, self.max_silence)
 
 
@@ -172,7 +176,9 @@ class Agv:
     published_at: float = -math.inf
     offline_since: float | None = None
     orders: int = 0
-    sent_orders: set[str] = field(default_factory=set)  # sent by this gateway since it started
+    sent_orders: dict[str, None] = field(
+        default_factory=dict
+    )  # sent since it started, oldest first
     cancel_sent: dict[str, float] = field(default_factory=dict)  # order -> monotonic
     notes: list[str] = field(default_factory=list)  # what to log, taken by the gateway
     cancels: list[tuple[str, str]] = field(default_factory=list)  # (order, why) to send
@@ -377,10 +383,14 @@ class Agv:
         )
         self._follow(now)
 
+    def cancelling(self, order: str, now: float) -> None:
+        """The gateway sends cancelOrder for ``order`` now: reconciliation need not again."""
+        _remember(self.cancel_sent, order, now)
+
     def _cancel_due(self, order: str, why: str, now: float) -> None:
         if now - self.cancel_sent.get(order, -math.inf) < CANCEL_AGAIN:
             return
-        self.cancel_sent[order] = now
+        _remember(self.cancel_sent, order, now)
         self.cancels.append((order, why))
 
     def _progress(self, job: Job, now: float) -> float:
@@ -484,7 +494,7 @@ class Agv:
             work=command.work_time(offered),
             sent_at=now,
         )
-        self.sent_orders.add(order_id)
+        _remember(self.sent_orders, order_id, None)
         self.finished = None
         self.failure = None
         self.dirty = True
@@ -577,3 +587,11 @@ def under_way(vda: VdaState) -> bool:
     return bool(vda.nodeStates or vda.edgeStates) or any(
         a.actionStatus in UNDER_WAY for a in vda.actionStates
     )
+
+
+def _remember(memory: dict[str, T], key: str, value: T) -> None:
+    """Keep ``key`` as the newest of ``memory``, which holds the ``REMEMBERED`` newest."""
+    memory.pop(key, None)
+    memory[key] = value
+    while len(memory) > REMEMBERED:
+        del memory[next(iter(memory))]

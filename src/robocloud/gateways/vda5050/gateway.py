@@ -363,7 +363,7 @@ class Vda5050Gateway:
                 order_id = job.order_id if job is not None else agv.still_running(rid)
                 if order_id is None:
                     return Ack(ok=True, robot=robot, request_id=rid)
-                agv.cancel_sent[order_id] = now  # reconciliation need not send it again
+                agv.cancelling(order_id, now)
                 header = self._headers.header(agv.name, "instantActions", self.wall())
                 message = vda.cancel_order(header, f"{order_id}-cancel-{secrets.token_hex(2)}")
                 name = agv.name

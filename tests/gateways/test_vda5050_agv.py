@@ -347,3 +347,13 @@ def test_an_order_of_another_form_is_left_alone_and_ended_jobs_are_cancelled() -
     feed(agv, vda.VdaState.model_validate(vda_state(orderId="req-x.1", nodeStates=[end], errors=[
         {"errorType": "bumper", "errorLevel": "FATAL"}])), 2.0)  # fmt: skip
     assert agv.cancels == [("req-x.1", "its robocloud task is over")]
+
+
+def test_an_agv_remembers_only_its_newest_orders() -> None:
+    agv = agv_with()
+    go = Assign(request_id="req-x", location=[30.0, 5.0], capabilities=["lift"])
+    for n in range(100):
+        agv.take(go.model_copy(update={"request_id": f"req-{n}"}), CAPS, 1.0)
+        agv.cancel()
+    assert len(agv.sent_orders) == 64 and "req-99.100" in agv.sent_orders
+    assert "req-0.1" not in agv.sent_orders

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import re
 import socket
 import subprocess
 import sys
@@ -171,7 +172,7 @@ def test_a_robot_that_acks_late_fails_the_late_ack_rule() -> None:
     late = results["late-ack"]
     assert not late.passed
     assert "answered the assign of check-" in late.sentence
-    assert "after 2.5 s" in late.sentence
+    assert re.search(r"after 2\.[5-9] s", late.sentence), late.sentence  # 2.5 s and a busy machine
     assert "counts a later answer as a refusal and sends a cancel" in late.sentence
     assert not results["assign"].passed
     assert results["state-schema"].passed

@@ -65,7 +65,7 @@ class RobotLink(Protocol):
         ...
 
     def ages(self) -> dict[str, float]:
-        """Seconds since each robot's latest state, by id."""
+        """Seconds since each robot last said something new (its sent_at went forward), by id."""
         ...
 
     def assign(self, robot_id: str, command: Assign) -> Ack:
@@ -109,6 +109,10 @@ class LatestStates:
         self._unavailable_said = -1e9
         self._states: dict[str, State] = {}
         self._received: dict[str, float] = {}
+        # When each robot last said something new: a state whose sent_at went
+        # forward. A gateway repeats a silent robot's last state (a new seq, the
+        # same sent_at): the robot's listed age grows, though its states come.
+        self._said: dict[str, float] = {}
         self._listeners: list[StateListener] = []
         # The Robot of each held state, made when first asked for and kept
         # while the robot's states say the same (see ``robots``).
@@ -191,6 +195,8 @@ class LatestStates:
                 self._listed = None  # back from silence: listed online again
         self._states[state.id] = state
         self._received[state.id] = now
+        if held is None or state.sent_at > held.sent_at:
+            self._said[state.id] = now
         self._columns.put(state, now, changed)
         return True
 
@@ -199,7 +205,7 @@ class LatestStates:
         self._pruned_at = now
         gone = [rid for rid, at in self._received.items() if now - at > self.forget_after]
         for rid in gone:
-            del self._states[rid], self._received[rid]
+            del self._states[rid], self._received[rid], self._said[rid]
             self._robots.pop(rid, None)
         if gone:
             self._columns = StateColumns.of(self._states, self._received)
@@ -224,7 +230,7 @@ class LatestStates:
     def ages(self) -> dict[str, float]:
         now = self.clock()
         with self._lock:
-            return {rid: now - at for rid, at in self._received.items()}
+            return {rid: now - at for rid, at in self._said.items()}
 
     def columns(self) -> FleetColumns:
         """The robots of ``robots()`` as columns, without making a Robot of any."""

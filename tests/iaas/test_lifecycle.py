@@ -666,3 +666,15 @@ def test_random_sequences_keep_the_invariants(data: st.DataObject) -> None:
         if not world.lives[rid].final:
             world.step(rid, lc.CancelAsked())
         world.check_finished(rid, commanded[rid])
+
+
+def test_a_robot_heard_again_after_a_silence_is_reminded_of_its_task() -> None:
+    """A restarted gateway keeps an AGV's order only if the IaaS assigns it again."""
+    life = SITUATIONS["underway"]  # a-1 heard at mono 100
+    travel = lc.RobotReport("a-1", "busy", 80.0, "travel", 0.5)
+    _, effects = lc.decide(life, travel, lc.Now(101.0, 1001.0))
+    assert not any(isinstance(e, lc.Remind) for e in effects), "no silence: no reminder"
+    _, effects = lc.decide(life, travel, lc.Now(103.0, 1003.0))  # 3 s silent, back on the task
+    remind = _effect(effects, lc.Remind)
+    assert isinstance(remind, lc.Remind)
+    assert [m.robot for m in remind.members] == ["a-1"] and remind.task == TASK

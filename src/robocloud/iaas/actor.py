@@ -222,6 +222,8 @@ class RequestActor:
                 self._operate(lambda: self._reserve(robots, commands), "reservation")
             case lc.Assign(members, task):
                 self._operate(lambda: self._assign(members, task), "dispatch")
+            case lc.Remind(members, task):
+                self._operate(lambda: self._remind(members, task), "reminder")
             case lc.StopRobots(robots):
                 shell.metrics.stops.labels("request").inc(len(robots))
                 self._operate(lambda: self._stop(robots), "stop")
@@ -479,6 +481,19 @@ class RequestActor:
                 if not ack.ok
             },
             frozenset(ack.robot for ack in acks if ack.unanswered),
+        )
+
+    async def _remind(self, members: Sequence[lc.Member], task: Task) -> None:
+        """The assign again, for robots back from a silence; their states say the rest."""
+        view = self.shell.view
+        await asyncio.gather(
+            *(
+                self._timed(
+                    "assign", m.cloud, view.assign, m.robot, m.cloud,
+                    command_for(self.request_id, m, task),
+                )
+                for m in members
+            )
         )
 
     async def _stop(self, robots: lc.Pairs) -> None:

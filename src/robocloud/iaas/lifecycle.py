@@ -93,6 +93,10 @@ class Rules:
     overrun_min: float = 30.0
     # Seconds (wall clock) without progress while travelling or working: stalled.
     stall_after: float = 30.0
+    # A robot heard again after this much silence (a gateway that restarted, a
+    # link that came back) is sent its assign again: idempotent for a robot on
+    # the task, and what a restarted gateway needs to keep the robot's order.
+    remind_after: float = 2.0
 
     def tolerance(self, expected: float) -> float:
         """Robot seconds a robot (or a request) may run past ``expected`` robot seconds."""
@@ -335,6 +339,14 @@ class Assign:
 
 
 @dataclass(frozen=True)
+class Remind:
+    """Send these robots their assign again (no answer expected: their states tell)."""
+
+    members: tuple[Member, ...]
+    task: Task
+
+
+@dataclass(frozen=True)
 class Confirm:
     """Make the robots' holds at other clouds firm (the request is dispatched)."""
 
@@ -405,6 +417,7 @@ Effect = (
     | Select
     | Reserve
     | Assign
+    | Remind
     | Confirm
     | Release
     | ReleaseAll
@@ -614,6 +627,10 @@ def _on_report(life: Life, event: RobotReport, now: Now) -> Step:
         life, effects = _advance(_with(life, heard))
         if heard.phase == "done":
             effects = [RobotDone(event.robot), *effects]
+        elif now.mono - member.heard_at > life.rules.remind_after:
+            # Back from a silence on this request's task: tell it again that
+            # the task is still its (a restarted gateway keeps the order).
+            effects = [Remind((heard,), life.task), *effects]
         return life, effects
     if event.last_phase == "done":
         done = replace(member, phase="done", progress=1.0, heard_at=now.mono, confirmed=True)

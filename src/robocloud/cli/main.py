@@ -10,6 +10,7 @@
     robocloud wildfire --iaas URL ...     (robocloud.wildfire.command)
     robocloud robot-check --connect ENDPOINT --cloud NAME --robot ID   (robocloud.cli.robot_check)
     robocloud vda5050 --cloud NAME --connect ENDPOINT --mqtt HOST:PORT (robocloud.gateways.vda5050)
+    robocloud ros2 --cloud NAME --connect ENDPOINT --robots FILE       (robocloud.gateways.ros2)
 
 ``select`` reads docs/model.md's input (a file, or ``-`` for stdin) and
 prints its output as one JSON document on stdout; its columnar reader
@@ -225,6 +226,16 @@ def build_parser() -> argparse.ArgumentParser:
     )
     add_vda5050_arguments(gateway)
     gateway.set_defaults(command=vda5050_command, command_name="vda5050")
+
+    from robocloud.gateways.ros2.command import add_ros2_arguments, ros2_command
+
+    ros2 = commands.add_parser(
+        "ros2",
+        help="make ROS 2 Nav2 robots (rmw_zenoh or zenoh-bridge-ros2dds) robots of a cloud",
+        description="Run the ROS 2 gateway until interrupted.",
+    )
+    add_ros2_arguments(ros2)
+    ros2.set_defaults(command=ros2_command, command_name="ros2")
     return parser
 
 

@@ -126,7 +126,7 @@ class BatteryState(IdlStruct, typename="sensor_msgs/msg/BatteryState"):
 
 @dataclass
 class UUID(IdlStruct, typename="unique_identifier_msgs/msg/UUID"):
-    uuid: array[uint8, 16] = field(default_factory=lambda: [0] * 16)
+    uuid: array[uint8, 16] = field(default_factory=lambda: bytes(16))
 
 
 @dataclass
@@ -250,7 +250,7 @@ def duration(seconds: float) -> Duration:
 
 
 def uuid_of(raw: bytes) -> UUID:
-    return UUID(list(raw))
+    return UUID(bytes(raw))
 
 
 def raw_uuid(uuid: UUID) -> bytes:

@@ -50,6 +50,7 @@ class WireTask(msgspec.Struct, frozen=True, gc=False):
     phase: Literal["travel", "work", "done", "failed"]
     progress: Annotated[float, Meta(ge=0.0, le=1.0)]
     capabilities: list[_Name]
+    reason: Annotated[str, Meta(max_length=300)] | None = None  # protocol 1.1
 
 
 class WireState(msgspec.Struct, gc=False):
@@ -296,6 +297,7 @@ class StateReader:
                 "phase": wire.phase,
                 "progress": wire.progress,
                 "capabilities": wire.capabilities,
+                "reason": wire.reason,
             },
             _TASK_FIELDS,
         )
@@ -317,4 +319,6 @@ def encode_batch(states: list[WireState | dict[str, Any]]) -> bytes:
 def wire_task(task: TaskProgress | None) -> WireTask | None:
     if task is None:
         return None
-    return WireTask(task.request_id, task.phase, task.progress, list(task.capabilities))
+    return WireTask(
+        task.request_id, task.phase, task.progress, list(task.capabilities), task.reason
+    )

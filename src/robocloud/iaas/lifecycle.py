@@ -208,6 +208,7 @@ class RobotReport:
     phase: str | None = None
     progress: float = 0.0
     last_phase: str | None = None
+    reason: str | None = None  # why its task of this request failed, in its words (1.1)
 
 
 @dataclass(frozen=True)
@@ -601,6 +602,10 @@ def _why_failed(event: RobotReport) -> str:
     """Why a robot that reports its task failed, or that went offline at it, failed it."""
     if event.battery <= 0:
         return "its battery died"
+    if event.reason:
+        # The robot's own sentence, quoted as its word: printable characters only.
+        said = "".join(c if c.isprintable() else " " for c in event.reason).strip().rstrip(".")
+        return f"it says: {said}"
     if event.status == "offline":
         return "it went offline"
     # A fleet gateway reports a task its vehicle dropped while still online.

@@ -582,6 +582,7 @@ def most_workers(kept: int, cores: int | None = None) -> int:
 def report_for(state: State, request_id: str) -> lc.RobotReport:
     """A robot's state, read for one request."""
     task, last = state.task, state.last_task
+    failed = [t for t in (task, last) if t is not None and t.request_id == request_id]
     return lc.RobotReport(
         robot=state.id,
         status=state.status,
@@ -589,6 +590,7 @@ def report_for(state: State, request_id: str) -> lc.RobotReport:
         phase=task.phase if task is not None and task.request_id == request_id else None,
         progress=task.progress if task is not None and task.request_id == request_id else 0.0,
         last_phase=last.phase if last is not None and last.request_id == request_id else None,
+        reason=next((t.reason for t in failed if t.phase == "failed" and t.reason), None),
     )
 
 

@@ -102,9 +102,14 @@ def test_a_task_fails_with_its_reason(event: str, reason: str) -> None:
     job = r.take(assign(), 0.0)
     job.sent = True
     if event == "abort":
-        r.on_result(job.goal_id, ros.STATUS_ABORTED, "error 104 no valid path", 1.0)
+        r.on_result(job.goal_id, ros.STATUS_ABORTED, "error 104 no valid path", 0.6)
+        assert r.job is job  # a preempting goal's status may still come
+        r.tick(1.0)
+        assert r.job is job
+        r.tick(1.2)
     elif event == "preempt":
         r.on_status([(job.goal_id, ros.STATUS_EXECUTING)], 0.5)
+        r.on_result(job.goal_id, ros.STATUS_ABORTED, "", 0.8)  # the result came first
         r.on_status([(job.goal_id, ros.STATUS_ABORTED), (OTHER, ros.STATUS_EXECUTING)], 1.0)
     elif event == "vanish":
         r.on_server(False, 1.0, "token gone")

@@ -106,6 +106,9 @@ class Ros2Gateway:
             robot = self._robots[robot_id]
             change(robot, self.clock())
             notes, robot.notes = robot.notes, []
+            events, robot.events = robot.events, []
+        for event in events:
+            log.info("%s", event)
         for note in notes:
             log.warning("%s", note)
 

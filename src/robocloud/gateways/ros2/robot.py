@@ -35,6 +35,9 @@ from robocloud.gateways.ros2.robots_file import RobotEntry
 
 LINGER = 3.0  # seconds a finished task stays in the robot's task
 STALE_AFTER = 5.0  # seconds without tf or battery before the robot counts as offline
+# Seconds an aborted goal waits for the status that shows a preempting goal: Nav2 aborts
+# a preempted goal, and its result and its status may come in either order.
+PREEMPT_GRACE = 0.5
 ACTIVE = frozenset({ros.STATUS_ACCEPTED, ros.STATUS_EXECUTING, ros.STATUS_CANCELING})
 
 
@@ -53,6 +56,7 @@ class Job:
     accepted: bool = False
     work_since: float | None = None
     sent: bool = False
+    aborted: tuple[str, float] | None = None  # (detail, when): an abort not yet explained
 
     def task(self) -> TaskProgress:
         return TaskProgress(
@@ -80,7 +84,8 @@ class RosRobot:
     seq: int = 0
     dirty: bool = False
     published_at: float = -math.inf
-    notes: list[str] = field(default_factory=list)  # log lines, taken by the gateway
+    notes: list[str] = field(default_factory=list)  # warnings to log, taken by the gateway
+    events: list[str] = field(default_factory=list)  # news to log, taken by the gateway
     cancels: list[bytes] = field(default_factory=list)  # goals to cancel, taken by the gateway
 
     # -- what the robot says --------------------------------------------------------
@@ -113,7 +118,7 @@ class RosRobot:
             return
         self.server_up = up
         self.dirty = True
-        self.notes.append(
+        (self.events if up else self.notes).append(
             f"robot {self.robot_id}: Nav2's action server {self.entry.action} is "
             f"{'visible' if up else 'gone'} ({why})"
         )
@@ -122,8 +127,8 @@ class RosRobot:
 
     def on_fault(self, reason: str, now: float) -> None:
         """A message that does not decode for the robot's distro: it cannot be chosen."""
-        if self.fault == reason:
-            return
+        if self.fault is not None:
+            return  # the first reason says it; the others would only repeat it
         self.fault = reason
         self.dirty = True
         self.notes.append(f"robot {self.robot_id} is not selectable: {reason}")
@@ -191,6 +196,9 @@ class RosRobot:
         name = ros.STATUS_NAMES.get(status, f"status {status}")
         if status == ros.STATUS_ABORTED and self.others_active:
             why = f"navigation preempted by another goal ({next(iter(self.others_active)).hex()})."
+        elif status == ros.STATUS_ABORTED and job.aborted is None:
+            job.aborted = (detail, now)  # preempted or not: the status will tell
+            return
         elif status == ros.STATUS_CANCELED:
             why = "navigation canceled on the robot, not by robocloud."
         else:
@@ -215,6 +223,10 @@ class RosRobot:
     def tick(self, now: float) -> None:
         job = self.job
         if job is None:
+            return
+        if job.aborted is not None and now - job.aborted[1] >= PREEMPT_GRACE:
+            detail = job.aborted[0]
+            self._finish("failed", now, f"navigation aborted{': ' + detail if detail else ''}.")
             return
         if job.phase == "work" and job.work_since is not None and now - job.work_since >= job.work:
             self._finish("done", now, None)

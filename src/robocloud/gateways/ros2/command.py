@@ -49,6 +49,12 @@ def add_ros2_arguments(parser: argparse.ArgumentParser) -> None:
         "(default ros2)",
     )
     parser.add_argument(
+        "--robot-keys",
+        action="store_true",
+        help="speak on each robot's own keys (a state publisher and a command queryable "
+        "each) instead of as a fleet gateway: what `robocloud robot-check` reads",
+    )
+    parser.add_argument(
         "--connect-timeout",
         type=float,
         default=10.0,
@@ -110,7 +116,7 @@ def ros2_command(args: argparse.Namespace) -> int:
 def run_gateway(args: argparse.Namespace, robots: RobotsFile, stop: threading.Event) -> None:
     from robocloud.fleet.zenoh_session import open_client
     from robocloud.gateways.ros2.gateway import Ros2Gateway
-    from robocloud.gateways.vda5050.zenoh_side import ZenohFleet
+    from robocloud.gateways.vda5050.zenoh_side import ZenohFleet, ZenohRobots
 
     session = open_client(
         args.connect, timeout=args.connect_timeout, security=security.from_arguments(args)
@@ -118,13 +124,16 @@ def run_gateway(args: argparse.Namespace, robots: RobotsFile, stop: threading.Ev
     try:
 
         def fleet(on_command: CommandHandler) -> RobotSide:
+            if args.robot_keys:
+                return ZenohRobots(session, args.cloud, on_command)
             return ZenohFleet(session, args.cloud, args.gateway_name, on_command)
 
         gateway = Ros2Gateway(fleet, robots)
         gateway.start()
         print(
             f"ROS 2 gateway: {len(robots.robots)} robots of {args.robots} are robots of "
-            f"{args.cloud} at {', '.join(args.connect)} (fleet {args.gateway_name}); Ctrl-C stops",
+            f"{args.cloud} at {', '.join(args.connect)} "
+            f"({'robot keys' if args.robot_keys else 'fleet ' + args.gateway_name}); Ctrl-C stops",
             file=sys.stderr,
             flush=True,
         )

@@ -84,6 +84,9 @@ class RobotLink:
         self._servers: set[str] = set()  # the action's services whose server is visible
         self._clients = {name: ServiceClient() for name in naming.SERVICES}
         self._feedback_at = -math.inf
+        # Goals sent, Nav2's answer not in yet -> whether a cancel waits for it: a cancel
+        # sent before the goal's acceptance could reach Nav2 first and miss the goal.
+        self._unanswered: dict[bytes, bool] = {}
         self._complained: dict[str, float] = {}
         self._lock = threading.Lock()
         self._closed = threading.Event()
@@ -376,19 +379,29 @@ class RobotLink:
         payload = self.codec.encode("nav2_msgs/NavigateToPose_SendGoal_Request", request)
 
         def on_reply(raw: bytes) -> None:
+            with self._lock:
+                cancel = self._unanswered.pop(goal_id, False)
             response = self._decode("nav2_msgs/NavigateToPose_SendGoal_Response", raw)
             if response is None:
                 return
             accepted = bool(response["accepted"])
             self._apply(self.robot_id, lambda r, now: r.on_goal_response(goal_id, accepted, now))
-            if accepted:
+            if accepted and cancel:
+                self.cancel_goal(goal_id)
+            elif accepted:
                 self._get_result(goal_id)
 
         def on_end(replied: bool) -> None:
+            with self._lock:
+                self._unanswered.pop(goal_id, None)
             if not replied:
                 self._apply(self.robot_id, lambda r, now: r.on_result_lost(goal_id, now))
 
+        with self._lock:
+            self._unanswered[goal_id] = False
         if not self._request("send_goal", payload, SEND_GOAL_TIMEOUT, on_reply, on_end):
+            with self._lock:
+                self._unanswered.pop(goal_id, None)
             self._apply(self.robot_id, lambda r, now: r.on_result_lost(goal_id, now))
 
     def _get_result(self, goal_id: bytes) -> None:
@@ -414,7 +427,14 @@ class RobotLink:
             self._apply(self.robot_id, lambda r, now: r.on_result_lost(goal_id, now))
 
     def cancel_goal(self, goal_id: bytes) -> None:
-        """cancel_goal naming this goal alone: its id, and a zero stamp (no older goals)."""
+        """cancel_goal naming this goal alone: its id, and a zero stamp (no older goals).
+
+        A goal Nav2 has not answered yet is canceled as soon as it is accepted.
+        """
+        with self._lock:
+            if goal_id in self._unanswered:
+                self._unanswered[goal_id] = True
+                return
         request = {"goal_info": {"goal_id": {"uuid": list(goal_id)}, "stamp": _stamp(0.0)}}
         payload = self.codec.encode("action_msgs/CancelGoal_Request", request)
 

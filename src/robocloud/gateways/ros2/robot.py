@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 import secrets
+from collections import deque
 from dataclasses import dataclass, field
 
 from robocloud.domain import RobotStatus
@@ -78,6 +79,7 @@ class RosRobot:
     server_up: bool = False
     fault: str | None = None  # why it cannot be chosen: a message its distro does not decode
     others_active: frozenset[bytes] = frozenset()  # goals of other users Nav2 runs
+    own_goals: deque[bytes] = field(default_factory=lambda: deque(maxlen=64))  # ours, recent
     job: Job | None = None
     finished: TaskProgress | None = None
     finished_until: float = -math.inf
@@ -154,7 +156,11 @@ class RosRobot:
     def on_status(self, statuses: list[tuple[bytes, int]], now: float) -> None:
         """A GoalStatusArray: whose goals Nav2 runs, and how ours is doing."""
         ours = self.job.goal_id if self.job is not None else None
-        others = frozenset(g for g, s in statuses if s in ACTIVE and g != ours)
+        # A goal of ours canceled a moment ago may show active until Nav2 has stopped it.
+        mine_before = set(self.own_goals)
+        others = frozenset(
+            g for g, s in statuses if s in ACTIVE and g != ours and g not in mine_before
+        )
         if others != self.others_active:
             self.others_active = others
             self.dirty = True
@@ -305,6 +311,7 @@ class RosRobot:
             travel_eta=math.dist(here, target) / self.entry.speed,
         )
         self.job, self.finished = job, None
+        self.own_goals.append(job.goal_id)
         self.dirty = True
         return job
 

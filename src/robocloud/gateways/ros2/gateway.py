@@ -36,6 +36,7 @@ from robocloud.gateways.vda5050.zenoh_side import CommandHandler, RobotSide
 log = logging.getLogger(__name__)
 
 TICK = 0.05  # seconds between two looks at what to send and publish
+POLL_EVERY = 0.1  # seconds between two reads of the robots' fast topics (link.RINGS)
 PUBLISH_EVERY = 1.0  # seconds: each robot's state at least this often, progress at most
 
 
@@ -150,7 +151,15 @@ class Ros2Gateway:
     # -- out: requests and states ---------------------------------------------------------
 
     def _loop(self) -> None:
+        polled = -1.0
         while not self._stop.is_set():
+            if self.clock() - polled >= POLL_EVERY:
+                polled = self.clock()
+                for link in self._links.values():
+                    try:
+                        link.poll()
+                    except Exception:
+                        log.exception("reading robot %s failed", link.robot_id)
             with self._changed:
                 self._changed.wait_for(lambda: bool(self._outbox) or self._stop.is_set(), TICK)
                 outbox, self._outbox = self._outbox, []

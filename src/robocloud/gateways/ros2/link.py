@@ -45,7 +45,12 @@ Apply = Callable[[str, Change], None]
 SEND_GOAL_TIMEOUT = 5.0  # seconds for Nav2 to accept or reject a goal
 RESULT_TIMEOUT = 7 * 24 * 3600.0  # get_result is held until the goal ends
 CANCEL_TIMEOUT = 5.0
-FEEDBACK_EVERY = 0.2  # seconds: feedback is read at most this often (Nav2 sends ~100 Hz)
+# The fast topics are not handed to Python sample by sample: Nav2 sends feedback at
+# ~100 Hz and /tf comes at 30 Hz or more, while the cloud sees a robot once a second.
+# Zenoh keeps the newest few in a ring (the older are dropped there) and ``poll``, run
+# ten times a second, reads them: the newest always, an older one only when it differs
+# in size (another set of transforms, e.g. map -> odom sent apart from odom -> base_link).
+RINGS = {"tf": 2, "feedback": 1}
 COMPLAIN_EVERY = 60.0
 
 # What the gateway reads, by the name of its part: (ROS type in interfaces, DDS name key).
@@ -83,7 +88,7 @@ class RobotLink:
         self._hashes: dict[str, tuple[str, str]] = {}  # part -> (DDS type, hash), from tokens
         self._servers: set[str] = set()  # the action's services whose server is visible
         self._clients = {name: ServiceClient() for name in naming.SERVICES}
-        self._feedback_at = -math.inf
+        self._rings: dict[str, Any] = {}  # part -> its subscriber with a ring channel
         # Goals sent, Nav2's answer not in yet -> whether a cancel waits for it: a cancel
         # sent before the goal's acceptance could reach Nav2 first and miss the goal.
         self._unanswered: dict[bytes, bool] = {}
@@ -150,6 +155,12 @@ class RobotLink:
                 key = naming.rmw_subscription_key(e.domain, e.namespace, name)
             else:
                 key = naming.bridge_key(e.namespace, name)
+            if part in RINGS:
+                ring = session.declare_subscriber(key, zenoh.handlers.RingChannel(RINGS[part]))
+                entities.append(ring)
+                with self._lock:
+                    self._rings[part] = ring
+                continue
             entities.append(
                 session.declare_subscriber(key, functools.partial(self._on_sample, part))
             )
@@ -242,6 +253,23 @@ class RobotLink:
         except Exception:  # nothing a robot sends stops the gateway
             log.exception("robot %s: a %s sample could not be handled", self.robot_id, part)
 
+    def poll(self) -> None:
+        """Read what the rings of the fast topics hold (see ``RINGS``)."""
+        with self._lock:
+            rings = list(self._rings.items())
+        for part, ring in rings:
+            samples = []
+            while (sample := ring.try_recv()) is not None:
+                samples.append(sample)
+            if not samples:
+                continue
+            newest = samples[-1]
+            size = len(newest.payload)
+            for sample in samples[:-1]:
+                if len(sample.payload) != size:
+                    self._on_sample(part, sample)
+            self._on_sample(part, newest)
+
     def _sample(self, part: str, sample: zenoh.Sample) -> None:
         e = self.entry
         if e.scheme == "rmw_zenoh":
@@ -250,11 +278,6 @@ class RobotLink:
                 return  # another type on the same name: not ours to read
             if not self._attachment_ok(part, sample.attachment):
                 return
-        if part == "feedback":
-            now = time.monotonic()
-            if now - self._feedback_at < FEEDBACK_EVERY:
-                return
-            self._feedback_at = now
         typename = TOPICS[part]
         try:
             message = self.codec.decode(

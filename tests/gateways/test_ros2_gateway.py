@@ -209,3 +209,22 @@ def test_an_rmw_zenoh_sample_without_a_good_attachment_is_dropped() -> None:
     other_type = key.replace("BatteryState_", "Other_")
     link._on_sample("battery", FakeSample(other_type, battery, good))  # type: ignore[arg-type]
     assert len(applied) == 1
+
+
+@pytest.fixture
+def bridge_robot(tmp_path: Path) -> Iterator[Rig]:
+    flags = ["--scheme", "bridge", "--distro", "humble", "--namespace", "/bot2"]
+    yield from rig(tmp_path, *flags, "--result-timeout", "1.2", distro="humble")
+
+
+def test_a_bridge_ending_the_held_get_result_at_its_timeout_is_asked_again(
+    bridge_robot: Rig,
+) -> None:
+    side = bridge_robot.side
+    side.wait(lambda s: s.status == "idle")
+    # 60 m at 20 m/s: 3 s of driving, past two of the bridge's 1.2 s timeouts.
+    ack = side.handler("r", Assign(request_id="q1", location=[60.0, 0.0], capabilities=["cam"]))
+    assert ack.ok, ack.error
+    done = side.wait(lambda s: s.task is not None and s.task.phase in ("done", "failed"), 10)
+    assert done.task is not None and done.task.phase == "done", done.task
+    assert len(bridge_robot.of("get_result_timeout")) >= 2

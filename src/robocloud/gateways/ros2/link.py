@@ -45,6 +45,7 @@ Apply = Callable[[str, Change], None]
 SEND_GOAL_TIMEOUT = 5.0  # seconds for Nav2 to accept or reject a goal
 RESULT_TIMEOUT = 7 * 24 * 3600.0  # get_result is held until the goal ends
 CANCEL_TIMEOUT = 5.0
+RESULT_AGAIN_AFTER = 1.0  # seconds: a get_result that ended sooner without a reply is Nav2 gone
 # The fast topics are not handed to Python sample by sample: Nav2 sends feedback at
 # ~100 Hz and /tf comes at 30 Hz or more, while the cloud sees a robot once a second.
 # Zenoh keeps the newest few in a ring (the older are dropped there) and ``poll``, run
@@ -442,9 +443,19 @@ class RobotLink:
                 detail = f"error {result['error_code']} {result['error_msg']}".strip()
             self._apply(self.robot_id, lambda r, now: r.on_result(goal_id, status, detail, now))
 
+        asked = time.monotonic()
+
         def on_end(replied: bool) -> None:
-            if not replied and not self._closed.is_set():
-                self._apply(self.robot_id, lambda r, now: r.on_result_lost(goal_id, now))
+            if replied or self._closed.is_set():
+                return
+            with self._lock:
+                up = self._servers >= set(naming.SERVICES)
+            if up and time.monotonic() - asked >= RESULT_AGAIN_AFTER:
+                # A bridge ends a held query at its own timeout (queries_timeout.actions.
+                # get_result, 5 s unless configured) while Nav2 still runs the goal: ask again.
+                self._get_result(goal_id)
+                return
+            self._apply(self.robot_id, lambda r, now: r.on_result_lost(goal_id, now))
 
         if not self._request("get_result", payload, RESULT_TIMEOUT, on_reply, on_end):
             self._apply(self.robot_id, lambda r, now: r.on_result_lost(goal_id, now))

@@ -287,8 +287,20 @@ class StandinRobot:
                 return
             if goal.status in (1, 2, 3):
                 goal.waiting.append(query)  # held until the goal ends
+                if self.args.result_timeout:  # as a bridge's queries_timeout would
+                    timer = threading.Timer(self.args.result_timeout, self._expire, (goal, query))
+                    timer.daemon = True
+                    timer.start()
                 return
             self._answer_result(query, goal)
+
+    def _expire(self, goal: Goal, query: zenoh.Query) -> None:
+        with self.lock:
+            if query not in goal.waiting:
+                return
+            goal.waiting.remove(query)
+        self.record({"event": "get_result_timeout", "goal_id": goal.goal_id.hex()})
+        query.drop()  # type: ignore[no-untyped-call]
 
     def _on_cancel(self, query: zenoh.Query) -> None:
         with query:
@@ -485,6 +497,14 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
         "--old-attachment",
         action="store_true",
         help="send the pre-2025 attachment (requests are still checked for the new one)",
+    )
+    p.add_argument(
+        "--result-timeout",
+        type=float,
+        default=0.0,
+        metavar="SECONDS",
+        help="end a held get_result without a reply after SECONDS, as a bridge "
+        "does at its queries_timeout (default: never)",
     )
     p.add_argument("--log", help="JSONL file of what the robot was asked (the first robot's)")
     p.add_argument("--count", type=int, default=1, help="robots, on consecutive ports")

@@ -46,12 +46,15 @@ SEND_GOAL_TIMEOUT = 5.0  # seconds for Nav2 to accept or reject a goal
 RESULT_TIMEOUT = 7 * 24 * 3600.0  # get_result is held until the goal ends
 CANCEL_TIMEOUT = 5.0
 RESULT_AGAIN_AFTER = 1.0  # seconds: a get_result that ended sooner without a reply is Nav2 gone
-# The fast topics are not handed to Python sample by sample: Nav2 sends feedback at
-# ~100 Hz and /tf comes at 30 Hz or more, while the cloud sees a robot once a second.
+# The topics are not handed to Python sample by sample: Nav2 sends feedback at ~100 Hz
+# and /tf comes at 30 Hz or more, while the cloud sees a robot once a second; and a
+# robot that floods any topic must not cost the gateway more than one that does not.
 # Zenoh keeps the newest few in a ring (the older are dropped there) and ``poll``, run
 # ten times a second, reads them: the newest always, an older one only when it differs
-# in size (another set of transforms, e.g. map -> odom sent apart from odom -> base_link).
-RINGS = {"tf": 2, "feedback": 1}
+# in size (another set of transforms, e.g. map -> odom sent apart from odom -> base_link;
+# a status array of other goals). A status lists every recent goal, so the newest
+# tells all; a battery is a level.
+RINGS = {"tf": 2, "feedback": 1, "status": 2, "battery": 1}
 COMPLAIN_EVERY = 60.0
 
 # What the gateway reads, by the name of its part: (ROS type in interfaces, DDS name key).
@@ -156,15 +159,10 @@ class RobotLink:
                 key = naming.rmw_subscription_key(e.domain, e.namespace, name)
             else:
                 key = naming.bridge_key(e.namespace, name)
-            if part in RINGS:
-                ring = session.declare_subscriber(key, zenoh.handlers.RingChannel(RINGS[part]))
-                entities.append(ring)
-                with self._lock:
-                    self._rings[part] = ring
-                continue
-            entities.append(
-                session.declare_subscriber(key, functools.partial(self._on_sample, part))
-            )
+            ring = session.declare_subscriber(key, zenoh.handlers.RingChannel(RINGS[part]))
+            entities.append(ring)
+            with self._lock:
+                self._rings[part] = ring
         if e.scheme == "rmw_zenoh":
             entities.append(session.liveliness().declare_subscriber(
                 f"{naming.LIVELINESS}/{e.domain}/**", self._on_token, history=True

@@ -52,6 +52,16 @@ def test_it_joins_offline_and_is_idle_once_the_action_server_is_visible() -> Non
     assert r.status(0.1) == "idle"
 
 
+def test_a_robot_without_the_map_frame_says_what_is_missing() -> None:
+    entry = robot().entry
+    r = RosRobot("r", entry)
+    r.on_transforms([("odom", "base_link", 1.0, 0.0, 0.0)], 0.0)
+    assert r.state("c", 0.05, 0.0, 1.0) is None
+    assert r.missing() == "no base_link in map on /tf yet (map -> odom -> base_link)"
+    r.on_transforms([("map", "odom", 0.0, 0.0, 0.0)], 0.0)
+    assert r.missing() == "no battery on /battery_state yet"
+
+
 def test_the_pose_composes_map_odom_base_link_and_the_offset() -> None:
     r = robot(yaw=math.pi / 2)
     r.on_transforms([("odom", "base_link", 1.0, 0.0, math.pi / 2)], 0.0)

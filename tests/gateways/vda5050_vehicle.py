@@ -40,11 +40,15 @@ def official_schemas() -> Path:
     The package (a dev dependency) carries copies of the VDA 5050 community's
     schemas; they are read where it installed them, never copied here.
     """
-    folder = Path(str(importlib.metadata.distribution("vda5050-sdk").locate_file(
-        "vda5050/validation/schemas")))
+    folder = Path(
+        str(
+            importlib.metadata.distribution("vda5050-sdk").locate_file("vda5050/validation/schemas")
+        )
+    )
     if not (folder / "order.json").is_file():
         raise SystemExit(
-            f"the VDA 5050 schemas are not at {folder}: install vda5050-sdk (make venv)")
+            f"the VDA 5050 schemas are not at {folder}: install vda5050-sdk (make venv)"
+        )
     return folder
 
 

@@ -36,6 +36,7 @@ from robocloud.gateways.vda5050.zenoh_side import CommandHandler, RobotSide
 log = logging.getLogger(__name__)
 
 TICK = 0.05  # seconds between two looks at what to send and publish
+UNLISTED_AFTER = 10.0  # seconds before a robot without a pose or a battery is logged
 POLL_EVERY = 0.1  # seconds between two reads of the robots' fast topics (link.RINGS)
 PUBLISH_EVERY = 1.0  # seconds: each robot's state at least this often, progress at most
 
@@ -64,6 +65,8 @@ class Ros2Gateway:
         self._outbox: list[Callable[[], None]] = []  # requests to the robots, sent by the loop
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._started = clock()
+        self._told: dict[str, float] = {}  # robot -> when to log again that it is not listed
         self.side = side(self._on_command)
         self.cloud = self.side.cloud
 
@@ -187,6 +190,9 @@ class Ros2Gateway:
                     continue
                 state = robot.state(self.cloud, self.robots_file.cost_per_m(rid), now, wall)
                 if state is None:
+                    if now - self._started > UNLISTED_AFTER and now >= self._told.get(rid, 0):
+                        self._told[rid] = now + UNLISTED_AFTER * 6
+                        log.warning("robot %s is not listed: %s", rid, robot.missing())
                     continue
                 robot.dirty, robot.published_at = False, now
                 states.append(state)

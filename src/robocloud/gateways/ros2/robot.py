@@ -355,6 +355,16 @@ class RosRobot:
             return "charging"
         return "idle"
 
+    def missing(self) -> str | None:
+        """What the robot has not said yet that it needs to be listed, or None."""
+        e = self.entry
+        if self.position() is None:
+            return (f"no {e.base_frame} in {e.map_frame} on /{e.tf_topic} yet "
+                    f"({e.map_frame} -> {e.odom_frame} -> {e.base_frame})")  # fmt: skip
+        if self.battery is None:
+            return f"no battery on /{e.battery_topic} yet"
+        return None
+
     def state(self, cloud: str, cost_per_m: float, now: float, wall: float) -> State | None:
         """The robot's State now (a new ``seq``), or None before it has a pose and a battery."""
         here = self.position()

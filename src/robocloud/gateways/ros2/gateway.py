@@ -194,7 +194,12 @@ class Ros2Gateway:
                         self._told[rid] = now + UNLISTED_AFTER * 6
                         log.warning("robot %s is not listed: %s", rid, robot.missing())
                     continue
-                robot.dirty, robot.published_at = False, now
+                # A change goes out at once; otherwise on a one-second grid, so a late
+                # loop neither lowers the rate below one a second nor raises it above.
+                due = robot.published_at + PUBLISH_EVERY
+                regular = not robot.dirty and now - due < PUBLISH_EVERY
+                robot.published_at = due if regular else now
+                robot.dirty = False
                 states.append(state)
             notes = [n for r in self._robots.values() for n in r.notes]
             for r in self._robots.values():

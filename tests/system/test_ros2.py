@@ -111,14 +111,14 @@ def site(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Site]:
             start_robot(site, robot)
         cloud.start_iaas()
         for robot in ROBOTS:
-            wait_until(lambda r=robot: "stand-in:" in (workdir / f"{r}.err").read_text(), 20,
+            wait_until(lambda r=robot: "stand-in:" in (workdir / f"{r}.err").read_text(), 60,
                        f"{robot} to run")  # fmt: skip
         site.gateway = subprocess.Popen(
             [sys.executable, "-m", "robocloud.cli.main", "ros2", "--cloud", "cloud-a",
              "--connect", cloud.zenoh, "--robots", str(robots_file)],
             stdout=subprocess.DEVNULL, stderr=open(workdir / "gateway.log", "ab"),  # noqa: SIM115
         )  # fmt: skip
-        wait_until(lambda: "ROS 2 gateway:" in site.gateway_log(), 20, "the gateway to run")
+        wait_until(lambda: "ROS 2 gateway:" in site.gateway_log(), 60, "the gateway to run")
         site.gateway_up = time.monotonic()
         yield site
     finally:

@@ -198,11 +198,8 @@ def test_the_capabilities_file_is_checked(tmp_path: Path) -> None:
     assert load_capabilities(str(good)) == CAPS
     assert load_capabilities(None).capabilities == {}
     bad = tmp_path / "bad.json"
-    bad.write_text(
-        json.dumps(
-            {"capabilities": {"lift": {"kind": "moving", "time": 1, "cost": 1, "action": "pick"}}}
-        )
-    )
+    bad.write_text(json.dumps({"capabilities": {"lift": {"kind": "moving", "time": 1,
+                                                         "cost": 1, "action": "pick"}}}))
     with pytest.raises(InvalidInput, match=r"bad.json: capabilities.lift.kind: input should be"):
         load_capabilities(str(bad))
     bad.write_text("{")

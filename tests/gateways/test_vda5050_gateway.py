@@ -101,8 +101,9 @@ def free_port() -> int:
 
 def join(world: tuple[ZenohRobotLink, Vda5050Gateway, list[Vehicle]], interface: str,
          serial: str, x: float, **kw: Any) -> tuple[str, Vehicle]:  # fmt: skip
-    link, _, vehicles = world
-    vehicle = Vehicle(interface, "acme", serial, (x, 0.0), ["pick"], **kw)
+    link, gateway, vehicles = world
+    vehicle = Vehicle(interface, "acme", serial, (x, 0.0), ["pick"], host=gateway.host,
+                      port=gateway.port, **kw)  # fmt: skip
     vehicles.append(vehicle)
     robot = f"acme.{serial}"
     wait_until(lambda: robot in link.states() and link.states()[robot].capabilities)
@@ -245,24 +246,10 @@ def test_two_agvs_whose_names_make_one_robot_id_are_not_one_robot(
     client = mqtt.Client(CallbackAPIVersion.VERSION2)
     client.connect(*mosquitto)
     client.loop_start()
-    first = vda_state(
-        agvPosition={
-            "x": 200.0,
-            "y": 0.0,
-            "theta": 0.0,
-            "mapId": "map",
-            "positionInitialized": True,
-        }
-    )
-    second = vda_state(
-        agvPosition={
-            "x": 300.0,
-            "y": 0.0,
-            "theta": 0.0,
-            "mapId": "map",
-            "positionInitialized": True,
-        }
-    )
+    first = vda_state(agvPosition={"x": 200.0, "y": 0.0, "theta": 0.0, "mapId": "map",
+                                   "positionInitialized": True})
+    second = vda_state(agvPosition={"x": 300.0, "y": 0.0, "theta": 0.0, "mapId": "map",
+                                    "positionInitialized": True})
     client.publish(f"{interface}/v2/dup/x.1/state", json.dumps(first), qos=1).wait_for_publish(5)
     wait_until(lambda: "dup.x.1" in link.states())
     for _ in range(3):

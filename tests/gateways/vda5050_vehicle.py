@@ -40,15 +40,11 @@ def official_schemas() -> Path:
     The package (a dev dependency) carries copies of the VDA 5050 community's
     schemas; they are read where it installed them, never copied here.
     """
-    folder = Path(
-        str(
-            importlib.metadata.distribution("vda5050-sdk").locate_file("vda5050/validation/schemas")
-        )
-    )
+    folder = Path(str(importlib.metadata.distribution("vda5050-sdk").locate_file(
+        "vda5050/validation/schemas")))
     if not (folder / "order.json").is_file():
         raise SystemExit(
-            f"the VDA 5050 schemas are not at {folder}: install vda5050-sdk (make venv)"
-        )
+            f"the VDA 5050 schemas are not at {folder}: install vda5050-sdk (make venv)")
     return folder
 
 
@@ -333,12 +329,13 @@ def main() -> None:
     parser.add_argument("--actions", default="pick")
     parser.add_argument("--speed", type=float, default=5.0)
     parser.add_argument("--action-time", type=float, default=0.5)
+    parser.add_argument("--host", default="127.0.0.1")
     parser.add_argument("--port", type=int, default=1883)
     parser.add_argument("--log", type=Path)
     args = parser.parse_args()
     vehicle = Vehicle(
         args.interface, args.manufacturer, args.serial, (args.x, args.y),
-        args.actions.split(","), port=args.port, speed=args.speed,
+        args.actions.split(","), host=args.host, port=args.port, speed=args.speed,
         action_time=args.action_time, log=args.log,
     )  # fmt: skip
     stop = threading.Event()

@@ -101,9 +101,8 @@ def free_port() -> int:
 
 def join(world: tuple[ZenohRobotLink, Vda5050Gateway, list[Vehicle]], interface: str,
          serial: str, x: float, **kw: Any) -> tuple[str, Vehicle]:  # fmt: skip
-    link, gateway, vehicles = world
-    vehicle = Vehicle(interface, "acme", serial, (x, 0.0), ["pick"], host=gateway.host,
-                      port=gateway.port, **kw)  # fmt: skip
+    link, _, vehicles = world
+    vehicle = Vehicle(interface, "acme", serial, (x, 0.0), ["pick"], **kw)
     vehicles.append(vehicle)
     robot = f"acme.{serial}"
     wait_until(lambda: robot in link.states() and link.states()[robot].capabilities)

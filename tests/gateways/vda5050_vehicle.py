@@ -329,13 +329,12 @@ def main() -> None:
     parser.add_argument("--actions", default="pick")
     parser.add_argument("--speed", type=float, default=5.0)
     parser.add_argument("--action-time", type=float, default=0.5)
-    parser.add_argument("--host", default="127.0.0.1")
     parser.add_argument("--port", type=int, default=1883)
     parser.add_argument("--log", type=Path)
     args = parser.parse_args()
     vehicle = Vehicle(
         args.interface, args.manufacturer, args.serial, (args.x, args.y),
-        args.actions.split(","), host=args.host, port=args.port, speed=args.speed,
+        args.actions.split(","), port=args.port, speed=args.speed,
         action_time=args.action_time, log=args.log,
     )  # fmt: skip
     stop = threading.Event()

@@ -31,6 +31,9 @@ def samples(distro: str) -> list[tuple[str, IdlStruct]]:
                                m.Transform(m.Vector3(1.0, 0.5, 0.0), m.Quaternion(0, 0, 0.6, 0.8))),
             m.TransformStamped(m.Header(m.Time(5, 6), "odom"), "base_link", m.Transform()),
         ])),
+        ("geometry_msgs/PoseWithCovarianceStamped", m.PoseWithCovarianceStamped(
+            m.Header(m.Time(7, 8), "map"),
+            m.PoseWithCovariance(pose.pose, [float(i) for i in range(36)]))),
         ("action_msgs/GoalStatusArray", m.status_array([m.GoalStatus(info, 2)])),
         ("action_msgs/CancelGoal_Request", m.CancelGoalRequest(info)),
         ("action_msgs/CancelGoal_Response", m.cancel_response(0, [info, info])),

@@ -228,3 +228,9 @@ def test_a_bridge_ending_the_held_get_result_at_its_timeout_is_asked_again(
     done = side.wait(lambda s: s.task is not None and s.task.phase in ("done", "failed"), 10)
     assert done.task is not None and done.task.phase == "done", done.task
     assert len(bridge_robot.of("get_result_timeout")) >= 2
+
+
+def test_a_robot_without_map_on_tf_is_placed_by_its_amcl_pose(tmp_path: Path) -> None:
+    for rigged in rig(tmp_path, "--no-map-tf", "--x", "4", "--namespace", "/bot5"):
+        state = rigged.side.wait(lambda s: s.status == "idle")
+        assert state.position == [pytest.approx(4.0), pytest.approx(0.0)]

@@ -57,9 +57,22 @@ def test_a_robot_without_the_map_frame_says_what_is_missing() -> None:
     r = RosRobot("r", entry)
     r.on_transforms([("odom", "base_link", 1.0, 0.0, 0.0)], 0.0)
     assert r.state("c", 0.05, 0.0, 1.0) is None
-    assert r.missing() == "no base_link in map on /tf yet (map -> odom -> base_link)"
+    assert r.missing() == (
+        "no base_link in map on /tf yet (map -> odom -> base_link), nor /amcl_pose"
+    )
     r.on_transforms([("map", "odom", 0.0, 0.0, 0.0)], 0.0)
     assert r.missing() == "no battery on /battery_state yet"
+
+
+def test_without_a_map_frame_on_tf_the_amcl_pose_places_the_robot() -> None:
+    r = RosRobot("r", robot().entry)
+    r.on_transforms([("odom", "base_link", 1.0, 0.0, 0.0)], 0.0)
+    r.on_amcl("odom", 9.0, 9.0, 0.0)  # not in the map frame: not a map pose
+    assert r.position() is None
+    r.on_amcl("map", 3.0, -1.0, 0.0)
+    assert r.position() == (pytest.approx(103.0), pytest.approx(-1.0))
+    r.on_transforms([("map", "odom", 1.0, 0.5, 0.0)], 0.0)  # /tf wins once it has the map
+    assert r.position() == (pytest.approx(102.0), pytest.approx(0.5))
 
 
 def test_the_pose_composes_map_odom_base_link_and_the_offset() -> None:

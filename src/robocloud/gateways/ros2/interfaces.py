@@ -39,6 +39,10 @@ _COMMON = {
         "std_msgs/Header header\nstring child_frame_id\ngeometry_msgs/Transform transform"
     ),
     "tf2_msgs/TFMessage": "geometry_msgs/TransformStamped[] transforms",
+    "geometry_msgs/PoseWithCovariance": "geometry_msgs/Pose pose\nfloat64[36] covariance",
+    "geometry_msgs/PoseWithCovarianceStamped": (
+        "std_msgs/Header header\ngeometry_msgs/PoseWithCovariance pose"
+    ),
     "sensor_msgs/BatteryState": """
         std_msgs/Header header
         float32 voltage
@@ -110,6 +114,7 @@ DDS_NAMES = {
     "status": "action_msgs::msg::dds_::GoalStatusArray_",
     "tf": "tf2_msgs::msg::dds_::TFMessage_",
     "battery": "sensor_msgs::msg::dds_::BatteryState_",
+    "amcl": "geometry_msgs::msg::dds_::PoseWithCovarianceStamped_",
 }
 
 # action_msgs/GoalStatus

@@ -54,7 +54,7 @@ RESULT_AGAIN_AFTER = 1.0  # seconds: a get_result that ended sooner without a re
 # in size (another set of transforms, e.g. map -> odom sent apart from odom -> base_link;
 # a status array of other goals). A status lists every recent goal, so the newest
 # tells all; a battery is a level.
-RINGS = {"tf": 2, "feedback": 1, "status": 2, "battery": 1}
+RINGS = {"tf": 2, "feedback": 1, "status": 2, "battery": 1, "amcl": 1}
 COMPLAIN_EVERY = 60.0
 
 # What the gateway reads, by the name of its part: (ROS type in interfaces, DDS name key).
@@ -63,6 +63,7 @@ TOPICS = {
     "battery": "sensor_msgs/BatteryState",
     "feedback": "nav2_msgs/NavigateToPose_FeedbackMessage",
     "status": "action_msgs/GoalStatusArray",
+    "amcl": "geometry_msgs/PoseWithCovarianceStamped",
 }
 
 
@@ -152,6 +153,7 @@ class RobotLink:
             "battery": e.battery_topic,
             "feedback": naming.action_entity(e.action, "feedback"),
             "status": naming.action_entity(e.action, "status"),
+            "amcl": e.amcl_topic,
         }
         entities: list[Any] = []
         for part, name in names.items():
@@ -198,6 +200,7 @@ class RobotLink:
         }
         parts[naming.full_name(e.namespace, e.tf_topic)] = "tf"
         parts[naming.full_name(e.namespace, e.battery_topic)] = "battery"
+        parts[naming.full_name(e.namespace, e.amcl_topic)] = "amcl"
         part = parts.get(token.name)
         wanted = "SS" if part in naming.SERVICES else "MP"
         if part is None or token.kind != wanted:
@@ -299,6 +302,11 @@ class RobotLink:
             seconds = eta["sec"] + eta["nanosec"] / 1e9
             distance = float(fb["distance_remaining"])
             self._apply(self.robot_id, lambda r, now: r.on_feedback(goal, distance, seconds, now))
+        elif part == "amcl":
+            pose = message["pose"]["pose"]
+            frame = message["header"]["frame_id"]
+            x, y = float(pose["position"]["x"]), float(pose["position"]["y"])
+            self._apply(self.robot_id, lambda r, now: r.on_amcl(frame, x, y, now))
         elif part == "status":
             statuses = [
                 (bytes(s["goal_info"]["goal_id"]["uuid"]), int(s["status"]))

@@ -6,7 +6,8 @@ hears, under its lock, and asks it for the State and for what to send.
 How a Nav2 robot reads as a robot (docs/ros2.md has the table):
 
 - ``position``: ``base_frame`` in ``map_frame`` from ``/tf`` (map -> odom ->
-  base_link), placed in the cloud's frame by the file's ``offset``.
+  base_link), else ``/amcl_pose``, placed in the cloud's frame by the file's
+  ``offset``.
 - ``battery``: ``sensor_msgs/BatteryState.percentage`` x 100; ``charging``
   when ``power_supply_status`` is CHARGING.
 - ``status``: ``offline`` while its action server is not visible or a message
@@ -73,6 +74,7 @@ class RosRobot:
     robot_id: str
     entry: RobotEntry
     frames: dict[str, tuple[str, float, float, float]] = field(default_factory=dict)
+    amcl: tuple[float, float] | None = None  # /amcl_pose in the map frame: the fallback
     battery: float | None = None
     charging: bool = False
     heard_at: float = -math.inf
@@ -99,6 +101,11 @@ class RosRobot:
         for parent, child, x, y, yaw in transforms:
             self.frames[child.lstrip("/")] = (parent.lstrip("/"), x, y, yaw)
         self.heard_at = now
+
+    def on_amcl(self, frame: str, x: float, y: float, now: float) -> None:
+        """``/amcl_pose``: where the robot is when ``/tf`` gives no map frame."""
+        if frame.lstrip("/") == self.entry.map_frame and math.isfinite(x) and math.isfinite(y):
+            self.amcl = (x, y)
 
     def on_battery(self, percentage: float, power_supply_status: int, now: float) -> None:
         if not math.isfinite(percentage) or not 0.0 <= percentage <= 1.0:
@@ -329,14 +336,17 @@ class RosRobot:
     # -- the robot it is -------------------------------------------------------------
 
     def position(self) -> tuple[float, float] | None:
-        """``base_frame`` in ``map_frame`` through ``/tf``, in the cloud's frame."""
+        """``base_frame`` in ``map_frame`` through ``/tf`` (else ``/amcl_pose``), in the cloud's."""
         e = self.entry
         x, y, yaw, frame, hops = 0.0, 0.0, 0.0, e.base_frame, 0
         while frame != e.map_frame:
             link = self.frames.get(frame)
             hops += 1
             if link is None or hops > 8:
-                return None
+                if self.amcl is None:
+                    return None
+                x, y = self.amcl  # no map frame on /tf: AMCL's estimate
+                break
             parent, px, py, pyaw = link
             c, s = math.cos(pyaw), math.sin(pyaw)
             x, y, yaw = px + c * x - s * y, py + s * x + c * y, pyaw + yaw
@@ -360,7 +370,8 @@ class RosRobot:
         e = self.entry
         if self.position() is None:
             return (f"no {e.base_frame} in {e.map_frame} on /{e.tf_topic} yet "
-                    f"({e.map_frame} -> {e.odom_frame} -> {e.base_frame})")  # fmt: skip
+                    f"({e.map_frame} -> {e.odom_frame} -> {e.base_frame}), "
+                    f"nor /{e.amcl_topic}")  # fmt: skip
         if self.battery is None:
             return f"no battery on /{e.battery_topic} yet"
         return None

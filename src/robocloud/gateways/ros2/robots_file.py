@@ -11,7 +11,8 @@
 
 The robot's id is its key. Optional per robot: ``kind`` (default ``ros2``),
 ``action`` (the NavigateToPose action's name, default ``navigate_to_pose``),
-``battery_topic`` (``battery_state``), ``tf_topic`` (``tf``), the frames
+``battery_topic`` (``battery_state``), ``tf_topic`` (``tf``), ``amcl_topic``
+(``amcl_pose``, the pose when ``/tf`` has no map frame), the frames
 (``map_frame``, ``odom_frame``, ``base_frame``), ``travel_cost_per_m``; names
 are under ``namespace``. ``offset`` places the robot's map in the cloud's
 frame: cloud = (x, y) + R(yaw) * map.
@@ -78,6 +79,7 @@ class RobotEntry(BaseModel):
     action: RosName = "navigate_to_pose"
     battery_topic: RosName = "battery_state"
     tf_topic: RosName = "tf"
+    amcl_topic: RosName = "amcl_pose"
     map_frame: FrameName = "map"
     odom_frame: FrameName = "odom"
     base_frame: FrameName = "base_link"

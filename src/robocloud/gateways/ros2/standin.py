@@ -15,7 +15,8 @@ encodes with pycdr2 (``standin_cdr.py``), not with the gateway's codec.
 What it does, from the ROS 2 and Nav2 documentation:
 
 - publishes ``/tf`` (map -> odom -> base_link; odom sits at (1, 0.5) in the
-  map, so a reader must compose the two), ``battery_state`` once a second,
+  map, so a reader must compose the two; ``--no-map-tf`` leaves map -> odom
+  out), ``amcl_pose`` twice a second, ``battery_state`` once a second,
   and while a goal runs ``navigate_to_pose/_action/feedback`` (distance and
   estimated time remaining) and ``.../status`` on every change;
 - serves ``send_goal`` (accepts, drives straight to the pose at ``--speed``),
@@ -120,6 +121,8 @@ class StandinRobot:
             return "tf"
         if part == "battery":
             return "battery_state"
+        if part == "amcl":
+            return "amcl_pose"
         return naming.action_entity("navigate_to_pose", part)
 
     def key(self, part: str) -> str:
@@ -156,7 +159,7 @@ class StandinRobot:
         if self.scheme == "rmw_zenoh":
             node = naming.token_key(self.domain, self.zid, 0, 0, "NN", self.namespace, NODE)
             self.always.append(s.liveliness().declare_token(node))
-            for i, part in enumerate(("tf", "battery"), start=1):
+            for i, part in enumerate(("tf", "battery", "amcl"), start=1):
                 self.always.append(s.liveliness().declare_token(self.token(part, "MP", i)))
         self.always.append(s.declare_queryable(
             f"robocloud-standin/{self.name}/control", self._on_control
@@ -373,13 +376,18 @@ class StandinRobot:
         ox, oy = ODOM_IN_MAP
         odom = m.Transform(m.Vector3(ox, oy, 0.0), m.Quaternion())
         base = m.Transform(m.Vector3(self.x - ox, self.y - oy, 0.0), m.Quaternion())
-        tf = m.tf_message(
-            [
-                m.TransformStamped(m.Header(now, "map"), "odom", odom),
-                m.TransformStamped(m.Header(now, "odom"), "base_link", base),
-            ]
-        )
+        transforms = [m.TransformStamped(m.Header(now, "odom"), "base_link", base)]
+        if not self.args.no_map_tf:  # else only AMCL's pose says where it is in the map
+            transforms.insert(0, m.TransformStamped(m.Header(now, "map"), "odom", odom))
+        tf = m.tf_message(transforms)
         self.put("tf", m.encode(tf))
+
+    def publish_amcl(self) -> None:
+        pose = m.Pose(m.Point(self.x, self.y, 0.0))
+        message = m.PoseWithCovarianceStamped(
+            m.Header(_time(time.time()), "map"), m.PoseWithCovariance(pose)
+        )
+        self.put("amcl", m.encode(message))
 
     def publish_battery(self) -> None:
         battery = m.BatteryState(
@@ -449,13 +457,14 @@ def run(
     robots: list[StandinRobot], args: argparse.Namespace, stop: threading.Event
 ) -> dict[str, int]:
     """Publish on every robot at its rates until ``stop``; how many of each were sent."""
-    sent = {"tf": 0, "feedback": 0, "battery": 0, "status": 0}
+    sent = {"tf": 0, "feedback": 0, "battery": 0, "status": 0, "amcl": 0}
     tick = 0.5 / max(args.tf_hz, args.feedback_hz, 10.0)
-    due = {"tf": 0.0, "feedback": 0.0, "battery": 0.0, "status": 0.0}
+    due = {"tf": 0.0, "feedback": 0.0, "battery": 0.0, "status": 0.0, "amcl": 0.0}
     every = {
         "tf": 1.0 / args.tf_hz,
         "feedback": 1.0 / args.feedback_hz,
         "battery": 1.0,
+        "amcl": 0.5,
         "status": 1.0,
     }
     last = time.monotonic()
@@ -493,6 +502,11 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--battery", type=float, default=0.8, help="a fraction, 0 to 1, as ROS says it")
     p.add_argument("--feedback-hz", type=float, default=20.0)
     p.add_argument("--tf-hz", type=float, default=30.0)
+    p.add_argument(
+        "--no-map-tf",
+        action="store_true",
+        help="no map -> odom on /tf: the map pose only on /amcl_pose",
+    )
     p.add_argument(
         "--old-attachment",
         action="store_true",

@@ -87,6 +87,18 @@ class PoseStamped(IdlStruct, typename="geometry_msgs/msg/PoseStamped"):
 
 
 @dataclass
+class PoseWithCovariance(IdlStruct, typename="geometry_msgs/msg/PoseWithCovariance"):
+    pose: Pose = field(default_factory=Pose)
+    covariance: array[float64, 36] = field(default_factory=lambda: [0.0] * 36)
+
+
+@dataclass
+class PoseWithCovarianceStamped(IdlStruct, typename="geometry_msgs/msg/PoseWithCovarianceStamped"):
+    header: Header = field(default_factory=Header)
+    pose: PoseWithCovariance = field(default_factory=PoseWithCovariance)
+
+
+@dataclass
 class Transform(IdlStruct, typename="geometry_msgs/msg/Transform"):
     translation: Vector3 = field(default_factory=Vector3)
     rotation: Quaternion = field(default_factory=Quaternion)

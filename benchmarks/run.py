@@ -19,7 +19,17 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks import federation, fleet, nxt, select_command, selection, service, soak, throughput
+from benchmarks import (
+    federation,
+    fleet,
+    nxt,
+    ros2,
+    select_command,
+    selection,
+    service,
+    soak,
+    throughput,
+)
 from benchmarks.machine import reference_ms, steal_ticks, stolen
 from benchmarks.report import SectionReport, render_markdown, render_text, write_csv
 
@@ -41,6 +51,7 @@ SECTIONS: list[Section] = [
     Section("throughput", throughput.run),
     Section("fleet", fleet.run),
     Section("nxt", nxt.run),
+    Section("ros2", ros2.run),
 ]
 
 

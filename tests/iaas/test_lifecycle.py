@@ -281,6 +281,11 @@ def test_a_refusal_names_the_robots_of_the_try_told_to_stop() -> None:
          "it reported that it cannot finish its task"),
         (lc.RobotReport("a-1", "idle", 40.0, None, 0.0, last_phase="failed"),
          "it reported that it cannot finish its task"),
+        # Protocol 1.1: the robot's own sentence, printable characters only.
+        (lc.RobotReport("a-1", "idle", 40.0, "failed", 0.5,
+                        reason="navigation preempted\nby another goal (ab12)."),
+         "it reported that it cannot finish its task: navigation preempted by another goal "
+         "(ab12)"),
     ],
 )
 def test_a_failure_says_why_the_robot_failed(report: lc.RobotReport, why: str) -> None:

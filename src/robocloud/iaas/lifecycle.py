@@ -747,7 +747,8 @@ _HANDLERS: dict[type, Callable[[Life, Any, Now], Step]] = {
 
 def _why_failed(event: RobotReport) -> tuple[Cause, str]:
     """Why a robot that reports its task failed, or that went offline at it, failed it."""
-    said = f": {event.reason.rstrip('.')}" if event.reason else ""
+    # The robot's own sentence, on one line (a history line, a log line).
+    said = f": {' '.join(event.reason.split()).rstrip('.')}" if event.reason else ""
     if event.battery <= 0:
         return "offline", f"its battery died{said}"
     if event.status == "offline":

@@ -20,7 +20,7 @@ from robocloud.gateways.ros2 import standin_cdr as m
 from robocloud.gateways.ros2.gateway import Ros2Gateway
 from robocloud.gateways.ros2.link import RobotLink, ServiceClient
 from robocloud.gateways.ros2.robots_file import parse_robots
-from robocloud.gateways.vda5050.zenoh_side import CommandHandler
+from robocloud.gateways.zenoh_side import CommandHandler
 
 
 @dataclass

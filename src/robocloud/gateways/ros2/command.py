@@ -22,7 +22,7 @@ from robocloud.federation import security
 from robocloud.gateways.ros2.robots_file import RobotsFile, load_robots
 
 if TYPE_CHECKING:
-    from robocloud.gateways.vda5050.zenoh_side import CommandHandler, RobotSide
+    from robocloud.gateways.zenoh_side import CommandHandler, RobotSide
 
 
 def add_ros2_arguments(parser: argparse.ArgumentParser) -> None:
@@ -116,7 +116,7 @@ def ros2_command(args: argparse.Namespace) -> int:
 def run_gateway(args: argparse.Namespace, robots: RobotsFile, stop: threading.Event) -> None:
     from robocloud.fleet.zenoh_session import open_client
     from robocloud.gateways.ros2.gateway import Ros2Gateway
-    from robocloud.gateways.vda5050.zenoh_side import ZenohFleet, ZenohRobots
+    from robocloud.gateways.zenoh_side import ZenohFleet, ZenohRobots
 
     session = open_client(
         args.connect, timeout=args.connect_timeout, security=security.from_arguments(args)

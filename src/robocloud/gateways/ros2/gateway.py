@@ -31,7 +31,7 @@ from robocloud.fleet.messages import Ack, Assign, Cancel, State
 from robocloud.gateways.ros2.link import Change, RobotLink
 from robocloud.gateways.ros2.robot import RosRobot
 from robocloud.gateways.ros2.robots_file import RobotsFile
-from robocloud.gateways.vda5050.zenoh_side import CommandHandler, RobotSide
+from robocloud.gateways.zenoh_side import CommandHandler, RobotSide
 
 log = logging.getLogger(__name__)
 

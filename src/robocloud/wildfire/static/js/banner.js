@@ -117,6 +117,7 @@ export class Banner {
     element.hidden = !first;
     if (!first) {
       delete element.dataset.key;
+      textElement.textContent = "";  // nothing holds: no old words left behind, even hidden
       return null;
     }
     element.dataset.level = first.level;

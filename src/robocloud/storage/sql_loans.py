@@ -16,14 +16,16 @@ from collections.abc import Sequence
 from datetime import datetime
 from typing import Any
 
-from sqlalchemy import Connection, insert, select, update
+from sqlalchemy import Connection, Row, insert, select, update
 
-from robocloud.storage import rules, statements
+from robocloud.storage import rules
 from robocloud.storage.engine import Database
 from robocloud.storage.records import Loan, StateChange, new_loan_id
 from robocloud.storage.schema import loan_history, loans, reservations
 from robocloud.storage.sql_holds import add_loan_history, drop_lapsed, end_loans, live_holds
-from robocloud.storage.statements import ACTIVE_LOANS, unexpired
+from robocloud.storage.statements import unexpired
+
+ACTIVE_LOANS = ("leased", "firm")  # as a list, not != released: the state index serves it
 
 
 class SqlLoans:
@@ -206,7 +208,7 @@ class SqlLoans:
             rows = conn.execute(
                 query.order_by(loans.c.created_at, loans.c.robot_id, loans.c.id)
             ).all()
-            return [statements.loan(row) for row in rows]
+            return [_loan(row) for row in rows]
 
         return self._db.run(work, write=False)
 
@@ -217,7 +219,7 @@ class SqlLoans:
                 .where(loans.c.origin == origin, loans.c.tell_origin.is_(True))
                 .order_by(loans.c.updated_at, loans.c.id)
             ).all()
-            return [statements.loan(row) for row in rows]
+            return [_loan(row) for row in rows]
 
         return self._db.run(work, write=False)
 
@@ -319,5 +321,22 @@ class SqlLoans:
                         "event" if line.state == previous else "state",
                     )
                 )
-        by_id = {row.id: statements.loan(row, tuple(lines[row.id])) for row in rows}
+        by_id = {row.id: _loan(row, tuple(lines[row.id])) for row in rows}
         return [by_id[i] for i in ids if i in by_id]
+
+
+def _loan(row: Row[Any], history: tuple[StateChange, ...] = ()) -> Loan:
+    """A row of ``loans`` and its history."""
+    return Loan(
+        id=row.id,
+        robot=row.robot_id,
+        origin=row.origin,
+        request_id=row.request_id,
+        state=row.state,
+        expires_at=row.expires_at,
+        created_at=row.created_at,
+        updated_at=row.updated_at,
+        reason=row.reason,
+        tell_origin=bool(row.tell_origin),
+        history=history,
+    )

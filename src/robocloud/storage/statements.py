@@ -1,12 +1,12 @@
 """The statements a request runs, each written once, and the rows they read and write.
 
-Both paths of ``SqlRequestStore`` run these: SQLAlchemy Core executes them as
-they are (PostgreSQL, and SQLite's less frequent work), and ``SqliteRows``
-runs the same statements compiled once to SQLite's text on the driver's own
-cursor. Parameters are named (``:rid``), so both paths pass the same names.
+Both paths of ``SqlRequestStore`` run these: SQLAlchemy Core executes them on
+PostgreSQL, and ``SqliteRows`` runs the same statements, compiled once to
+SQLite's text, on the driver's own cursor. Parameters are named (``:rid``),
+so both paths pass the same names.
 
-Also here: turning rows into ``RequestRecord``, ``StateChange`` and ``Loan``,
-which the request and loan halves of the store both do.
+Also here: turning the rows these statements read into ``RequestRecord``
+and ``StateChange``, on either path.
 
 Layer 3, below every other SQL module: imports ``schema``, ``records`` and
 ``rules`` only.
@@ -19,11 +19,11 @@ from datetime import datetime
 from functools import cache, lru_cache
 from typing import Any
 
-from sqlalchemy import Delete, Insert, Row, Select, Update, bindparam, delete, insert, or_, select
+from sqlalchemy import Delete, Insert, Select, Update, bindparam, delete, insert, or_, select
 from sqlalchemy import update as update_statement
 
 from robocloud.storage import rules
-from robocloud.storage.records import Loan, RequestRecord, StateChange
+from robocloud.storage.records import RequestRecord, StateChange
 from robocloud.storage.schema import request_history, requests, reservations
 
 # Built once: building and keying a Core statement cost more than running it
@@ -51,7 +51,6 @@ NEW_REQUEST: Insert = insert(requests)  # the parameters: every column of ``requ
 ADD_LINE: Insert = insert(request_history)  # the parameters: ``line_row``
 DROP_HOLDS: Delete = delete(reservations).where(reservations.c.request_id == bindparam("rid"))
 
-ACTIVE_LOANS = ("leased", "firm")  # as a list, not != released: the state index serves it
 REQUEST_COLUMNS = tuple(column.name for column in requests.columns)
 
 
@@ -158,19 +157,3 @@ def record(row: Mapping[Any, Any], history: tuple[StateChange, ...]) -> RequestR
         history=history,
     )
 
-
-def loan(row: Row[Any], history: tuple[StateChange, ...] = ()) -> Loan:
-    """A row of ``loans`` and its history."""
-    return Loan(
-        id=row.id,
-        robot=row.robot_id,
-        origin=row.origin,
-        request_id=row.request_id,
-        state=row.state,
-        expires_at=row.expires_at,
-        created_at=row.created_at,
-        updated_at=row.updated_at,
-        reason=row.reason,
-        tell_origin=bool(row.tell_origin),
-        history=history,
-    )

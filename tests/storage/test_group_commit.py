@@ -51,14 +51,14 @@ def _lined_up(store: SqlRequestStore, calls: list[Callable[[], Any]]) -> list[An
         except Exception as error:
             answers[i] = error
 
-    lock = store._write_lock
+    lock = store._db._write_lock
     assert lock is not None
     threads = [threading.Thread(target=run, args=(i,)) for i in range(len(calls))]
     with lock:
         for n, thread in enumerate(threads, start=1):
             thread.start()
             deadline = time.monotonic() + 10
-            while len(store._waiting) < n:  # in line before the next one starts
+            while len(store._db._waiting) < n:  # in line before the next one starts
                 assert time.monotonic() < deadline, "a writer never lined up"
                 time.sleep(0.001)
     for thread in threads:
@@ -193,24 +193,24 @@ def test_a_write_alone_needs_no_group(store: SqlRequestStore) -> None:
     commits = _commits(store)
     assert store.transition(rid, "selecting").state == "selecting"
     assert len(commits) == 1
-    assert store._waiting == []
+    assert store._db._waiting == []
 
 
 def test_a_group_that_cannot_begin_fails_every_write_at_once(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    monkeypatch.setattr("robocloud.storage.sql.BUSY_TIMEOUT_S", 0.1)
+    monkeypatch.setattr("robocloud.storage.engine.BUSY_TIMEOUT_S", 0.1)
     path = tmp_path / "store.db"
     store = SqlRequestStore(f"sqlite:///{path}")
     ids = [store.create_request("wildfire", TASK)[0].id for _ in range(5)]
     begins: list[int] = []
-    transaction = store._transaction
+    transaction = store._db._transaction
 
     def counted(**how: Any) -> Any:
         begins.append(1)
         return transaction(**how)
 
-    monkeypatch.setattr(store, "_transaction", counted)
+    monkeypatch.setattr(store._db, "_transaction", counted)
     other = sqlite3.connect(path, isolation_level=None)
     other.execute("BEGIN IMMEDIATE")  # another process holds the write lock
 
@@ -263,12 +263,12 @@ def test_writes_keep_one_connection_and_a_broken_one_is_replaced(store: SqlReque
         store.transition(rid, "selecting")
     assert len(checkouts) <= 1  # the first write may open the kept connection
 
-    kept = store._kept_writer
+    kept = store._db._kept_writer
     assert kept is not None
     kept.connection.driver_connection.close()  # type: ignore[union-attr]
     with pytest.raises(StoreUnavailable, match="closed database"):
         store.transition(ids[0], "rejected", reason="no robot")
-    assert store._kept_writer is None
+    assert store._db._kept_writer is None
     store.transition(ids[1], "rejected", reason="no robot")  # on a new connection
     states = {rid: store.get(rid).state for rid in ids}  # type: ignore[union-attr]
     assert states == {ids[0]: "selecting", ids[1]: "rejected",

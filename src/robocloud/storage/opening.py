@@ -13,8 +13,9 @@ import re
 from pathlib import Path
 
 from robocloud.errors import InvalidInput
+from robocloud.storage.engine import URL_HINT, database_url
 from robocloud.storage.memory import MemoryRequestStore
-from robocloud.storage.sql import URL_HINT, SqlRequestStore, database_url
+from robocloud.storage.sql import SqlRequestStore
 from robocloud.storage.store import RequestStore
 
 MEMORY_URL = "memory://"

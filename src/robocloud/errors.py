@@ -32,7 +32,7 @@ class RoboCloudError(Exception):
 
 
 class InvalidInput(RoboCloudError):
-    """Input that does not match MODEL.md's shapes or rules."""
+    """Input that does not match docs/model.md's shapes or rules."""
 
     def __init__(self, message: str, field: str | None = None) -> None:
         super().__init__(message)

@@ -18,7 +18,7 @@ from robocloud.iaas.config import Settings
 from robocloud.storage import MemoryRequestStore
 
 A = {"Authorization": "Bearer key-a"}
-# MODEL.md's worked example of the choice: (T, C) of three one-robot coalitions.
+# docs/model.md's worked example of the choice: (T, C) of three one-robot coalitions.
 WORKED = {"a-0001": (300.0, 210.0), "a-0002": (600.0, 150.0), "a-0003": (1200.0, 120.0)}
 
 

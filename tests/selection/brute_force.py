@@ -17,7 +17,7 @@ def all_feasible_rows(problem: CoalitionProblem) -> np.ndarray:
 
 
 def brute_force_front(problem: CoalitionProblem) -> list[Coalition]:
-    """Every feasible coalition, then MODEL.md's front.
+    """Every feasible coalition, then docs/model.md's front.
 
     Before the quadratic ``pareto_front``, a loose filter keeps only
     coalitions whose cost is within 1e-6 of the cheapest one that is no

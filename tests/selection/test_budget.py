@@ -139,7 +139,7 @@ def test_select_within_budget_is_complete_and_exact() -> None:
     result = select(robots, task, budget_s=30.0)
     assert result.complete and result.chosen is not None
     data = result.to_json()
-    # MODEL.md's keys stay; the new ones are added.
+    # docs/model.md's keys stay; the new ones are added.
     assert list(data)[:7] == ["candidates", "ranking", "pareto", "chosen", "reason",
                               "optimizer", "elapsed_ms"]
     assert data["bound"] == {"time": 0.0, "cost": 0.0, "size": 0}

@@ -1,6 +1,6 @@
-"""The final choice (MODEL.md, "The choice"): V-shape PROMETHEE II over the front.
+"""The final choice (docs/model.md, "The choice"): V-shape PROMETHEE II over the front.
 
-A worked example (MODEL.md's, by hand), a table of small fronts, random
+A worked example (docs/model.md's, by hand), a table of small fronts, random
 fronts against the pairwise definition of phi, and the operator's kind of
 front (issue 26), where the usual criterion gave every member the same flow.
 """
@@ -32,12 +32,12 @@ def member(name: str, time: float, cost: float, size: int) -> Coalition:
     return Coalition(robots=tuple(f"{name}-{i}" for i in range(size)), time=time, cost=cost)
 
 
-# MODEL.md's worked example: three coalitions of three robots, each faster and dearer.
+# docs/model.md's worked example: three coalitions of three robots, each faster and dearer.
 A = member("a", 300.0, 210.0, 3)
 B = member("b", 600.0, 150.0, 3)
 C = member("c", 1200.0, 120.0, 3)
 WORKED = [A, B, C]
-# phi by hand (MODEL.md): exact fractions.
+# phi by hand (docs/model.md): exact fractions.
 WORKED_PHI = {
     "balanced": (Fraction(-1, 18), Fraction(1, 9), Fraction(-1, 18)),
     "time": (Fraction(7, 30), Fraction(2, 15), Fraction(-11, 30)),

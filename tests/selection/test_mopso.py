@@ -75,7 +75,7 @@ def assert_valid_front(problem: CoalitionProblem, front: list[Coalition]) -> Non
 
 
 def brute_force_front(problem: CoalitionProblem) -> list[Coalition]:
-    """Every subset, feasible ones kept, then MODEL.md's front.
+    """Every subset, feasible ones kept, then docs/model.md's front.
 
     Before the quadratic ``pareto_front``, each size class keeps only the
     points no earlier point (by T, then C) beats on C: a superset of its

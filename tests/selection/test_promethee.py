@@ -101,7 +101,7 @@ def test_fast_usual_path_equals_blocked_path(seed: int) -> None:
 @pytest.mark.parametrize("scale, noise", [(1.0, 4e-7), (1e7, 4e-3)])
 @pytest.mark.parametrize("seed", range(10))
 def test_ties_within_tolerance_are_no_preference(scale: float, noise: float, seed: int) -> None:
-    """Values 1 apart (times scale) and jittered well inside MODEL.md's tolerance
+    """Values 1 apart (times scale) and jittered well inside docs/model.md's tolerance
     (1e-6 absolute; 1e-9 * 1e7 = 1e-2 relative) rank like the exact integers."""
     rng = np.random.default_rng(seed)
     exact = rng.integers(0, 5, (40, 3)) * 100.0 + scale

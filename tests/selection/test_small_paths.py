@@ -2,7 +2,7 @@
 
 ``pareto_front`` switches to plain Python below a few tens of coalitions
 (numpy's per-call cost dominates there). Values are drawn on a
-coarse grid and nudged by less and by more than MODEL.md's tolerance, so
+coarse grid and nudged by less and by more than docs/model.md's tolerance, so
 ties, near-ties and the tolerance's edges all occur.
 """
 

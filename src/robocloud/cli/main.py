@@ -87,7 +87,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     select = commands.add_parser(
         "select",
-        help="choose a coalition for a task (MODEL.md's select)",
+        help="choose a coalition for a task (docs/model.md's select)",
         description="Read {robots, task} as JSON and print the selection as JSON.",
     )
     select.add_argument("scenario", metavar="SCENARIO.json", help="input file, or - for stdin")

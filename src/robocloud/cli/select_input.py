@@ -61,7 +61,7 @@ CHUNK = 500
 
 
 def parse_select_input(text: str, source: str = "the input") -> tuple[list[Robot], Task]:
-    """MODEL.md's ``{"robots": [...], "task": {...}}``, validated, ids unique."""
+    """docs/model.md's ``{"robots": [...], "task": {...}}``, validated, ids unique."""
     try:
         data = json.loads(text, parse_constant=_reject_constant)
     except json.JSONDecodeError as error:

@@ -1,4 +1,4 @@
-"""Floating point equality as MODEL.md fixes it.
+"""Floating point equality as docs/model.md fixes it.
 
 Two values are equal when they differ by at most 1e-9 relative or 1e-6
 absolute. Every comparison of times, costs and flows goes through here so the

@@ -1,4 +1,4 @@
-"""A request's life cycle: the states of ARCHITECTURE.md and the moves between them.
+"""A request's life cycle: the states of docs/architecture.md and the moves between them.
 
 ::
 

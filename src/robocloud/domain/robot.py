@@ -1,4 +1,4 @@
-"""A robot as MODEL.md describes it: where it is, what it can do, what it costs."""
+"""A robot as docs/model.md describes it: where it is, what it can do, what it costs."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""A task request as MODEL.md fixes it, and the thesis's Criteria_Importance."""
+"""A task request as docs/model.md fixes it, and the thesis's Criteria_Importance."""
 
 from __future__ import annotations
 

@@ -49,7 +49,7 @@ class RobotLink(Protocol):
     def cloud(self) -> str: ...
 
     def robots(self) -> list[Robot]:
-        """Every robot heard from, as MODEL.md robots; ``offline`` when silent too long."""
+        """Every robot heard from, as docs/model.md robots; ``offline`` when silent too long."""
         ...
 
     def states(self) -> dict[str, State]:
@@ -293,7 +293,7 @@ class LatestStates:
 
 
 def _same_robot(a: State, b: State) -> bool:
-    """Whether two states of one robot describe the same MODEL.md robot."""
+    """Whether two states of one robot describe the same docs/model.md robot."""
     return (
         a.status == b.status
         and a.battery == b.battery

@@ -19,7 +19,7 @@ task's phase::
               "capabilities": ["grabber"]},
      "seq": 1042, "sent_at": 1767225600.25}
 
-The robot fields are MODEL.md's. ``task`` is null when the robot has none;
+The robot fields are docs/model.md's. ``task`` is null when the robot has none;
 ``phase`` is ``travel`` (driving to the location), ``work`` (using the
 capabilities there), ``done`` (finished: the robot is idle at the location) or
 ``failed`` (it cannot finish, e.g. its battery died: status ``offline``).
@@ -103,7 +103,7 @@ class TaskProgress(BaseModel):
 
 
 class State(BaseModel):
-    """A robot's report of itself: MODEL.md's robot plus its kind, task and sequence."""
+    """A robot's report of itself: docs/model.md's robot plus its kind, task and sequence."""
 
     model_config = _WIRE
 
@@ -141,7 +141,7 @@ class State(BaseModel):
     sent_at: Finite = Field(description="unix time, seconds, when the robot sent it")
 
     def to_robot(self, status: RobotStatus | None = None) -> Robot:
-        """The MODEL.md robot this state describes, with ``status`` instead when given."""
+        """The docs/model.md robot this state describes, with ``status`` instead when given."""
         # Every field was validated with the same constraints Robot has.
         return Robot.model_construct(
             id=self.id,
@@ -173,7 +173,7 @@ class Assign(BaseModel):
     )
 
     def work_time(self, capabilities: Mapping[str, Capability]) -> float:
-        """Seconds of work at the location for a robot with ``capabilities`` (MODEL.md exec_i).
+        """Seconds of work at the location for a robot with ``capabilities`` (docs/model.md exec_i).
 
         Names the robot does not have count for nothing; the robot refuses
         such a command before it gets here.

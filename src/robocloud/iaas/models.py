@@ -23,7 +23,7 @@ LABEL_PATTERN = explained(
 
 
 class RequestCreate(Task):
-    """A MODEL.md task, plus an optional label for the application's own use."""
+    """A docs/model.md task, plus an optional label for the application's own use."""
 
     label: Annotated[str, Field(max_length=200, pattern=LABEL_PATTERN)] | None = None
 

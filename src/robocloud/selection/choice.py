@@ -5,7 +5,7 @@ the iterations, we select among them based on the Promethee II ranking
 method giving the same importance (weight) for all criteria (time, cost,
 and number of robots)."
 
-Departures from the thesis (MODEL.md, "The choice"):
+Departures from the thesis (docs/model.md, "The choice"):
 
 - The weights follow the task's priority, as they already do in the ranking
   (Algorithm 3). ``balanced`` keeps the thesis's equal weights; ``time``
@@ -20,7 +20,7 @@ Departures from the thesis (MODEL.md, "The choice"):
   request got 19 min for 137.81 when 11 min 47 s cost 140.20).
 
 All three criteria are minimised; the highest net flow wins; ties (flows
-equal under MODEL.md's tolerance) go to the smaller C, then T, then N, then
+equal under docs/model.md's tolerance) go to the smaller C, then T, then N, then
 the sorted id list.
 """
 
@@ -37,7 +37,7 @@ from robocloud.selection.promethee import (
     weighted_parts,
 )
 
-# (T, C, N) weights per priority, as MODEL.md fixes them.
+# (T, C, N) weights per priority, as docs/model.md fixes them.
 CHOICE_WEIGHTS: dict[str, tuple[float, float, float]] = {
     "balanced": (1 / 3, 1 / 3, 1 / 3),
     "time": (0.6, 0.2, 0.2),
@@ -92,7 +92,7 @@ def _rows(front: Sequence[Coalition]) -> list[tuple[float, float, float]]:
 
 
 def _best(front: Sequence[Coalition], phi: Sequence[float]) -> int | None:
-    """The highest phi; ties (equal under MODEL.md's tolerance) by C, T, N, ids."""
+    """The highest phi; ties (equal under docs/model.md's tolerance) by C, T, N, ids."""
     if not phi:
         return None
     best = max(phi)

@@ -29,7 +29,7 @@ the class's price (the multipliers of what it brings, less mu). Every term
 after LB is non-negative, so *all* x whose cost is within a budget of LB are
 found by enumerating the class counts whose deviations fit in that budget.
 Where the relaxation is integral (almost always, measured in benchmarks/)
-the budget is MODEL.md's tolerance: the enumeration then lists every tie,
+the budget is docs/model.md's tolerance: the enumeration then lists every tie,
 which the tie rule (the smallest sorted id list) needs. Only where that list
 would be long does the node branch. The bound is computed here from the
 duals, so a slightly inexact dual from the solver weakens a bound and never
@@ -73,7 +73,7 @@ def tolerance(value: float) -> float:
 class CoverResult:
     """The cheapest class counts, or why there are none.
 
-    ``ties`` holds every count vector whose cost is within MODEL.md's
+    ``ties`` holds every count vector whose cost is within docs/model.md's
     tolerance of ``cost`` (when ``status`` is optimal). ``lower_bound`` is a
     proven bound on the optimum: equal to ``cost`` when optimal, below it
     when the search was cut (by the deadline or a node limit), in which case

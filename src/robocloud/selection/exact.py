@@ -1,4 +1,4 @@
-"""The exact optimizer: the true Pareto front of MODEL.md, beyond the thesis.
+"""The exact optimizer: the true Pareto front of docs/model.md, beyond the thesis.
 
 The thesis searches coalitions with MOPSO (Algorithm 4) and accepts that "the
 solution may not be the best among all solutions". This module returns the
@@ -216,7 +216,7 @@ def exact_search(
     survivors: IntArray | None = None,
     deadline: Deadline = NO_DEADLINE,
 ) -> ExactOutcome:
-    """The Pareto front of MODEL.md over all of ``problem``'s candidates, within ``deadline``."""
+    """The Pareto front (docs/model.md) of all of ``problem``'s candidates, within ``deadline``."""
     keep = prune(problem) if survivors is None else survivors
     largest = problem.largest_useful_coalition
     if keep.size == 0 or largest < 1:

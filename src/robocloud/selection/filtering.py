@@ -1,7 +1,7 @@
 """Filtering (thesis Algorithm 2, Filter_Robots).
 
 The thesis keeps the idle robots whose battery is at least the filtering rule.
-MODEL.md adds that a robot bringing none of the required capabilities is
+docs/model.md adds that a robot bringing none of the required capabilities is
 dropped too: it could only add cost, so no Pareto point changes.
 """
 

@@ -16,7 +16,7 @@ with particle swarm optimization" (IEEE TEVC 8(3), 2004):
 - when REP holds more than its size, members are removed from the most
   crowded hypercubes first.
 
-Dominance is MODEL.md's, under the tolerance of :mod:`robocloud.domain.numeric`.
+Dominance is docs/model.md's, under the tolerance of :mod:`robocloud.domain.numeric`.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The Pareto front of MODEL.md: dominance under the tolerance, one coalition per vector.
+"""The Pareto front of docs/model.md: dominance under the tolerance, one coalition per vector.
 
 A coalition weakly dominates another when it is no worse in T, C and N
 (``<=`` under the tolerance) and better in one (``<``). Where several

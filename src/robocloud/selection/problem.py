@@ -1,6 +1,6 @@
 """The coalition problem: each candidate's t_i, c_i and U_i as arrays.
 
-MODEL.md, "Per robot, for one task": d_i is the distance to the task's
+docs/model.md, "Per robot, for one task": d_i is the distance to the task's
 location, t_i = d_i / speed_i + exec_i (exec_i the max or the sum of the used
 capabilities' times), c_i = travel_cost_per_m_i * d_i + the sum of the used
 capabilities' costs, and U_i the required capabilities the robot brings.
@@ -172,7 +172,7 @@ class CoalitionProblem:
         return np.asarray((counts >= self.need).all(axis=1))
 
     def feasible(self, members: BoolArray) -> BoolArray:
-        """MODEL.md's feasibility, with the thresholds compared under the tolerance."""
+        """docs/model.md's feasibility, with the thresholds compared under the tolerance."""
         time, cost, size = self.evaluate(members)
         tol_t = margin_array(time)
         tol_c = margin_array(cost)

@@ -14,7 +14,7 @@ names ('usual', 'ushape', 'vshape', 'level', 'vshape_2') plus 'gaussian',
 with pymcdm's conventions for q and p so the two agree.
 
 The general path never holds an n-by-n matrix: it walks row blocks, so memory
-stays O(block * n). When every criterion is usual (MODEL.md's ranking), the
+stays O(block * n). When every criterion is usual (docs/model.md's ranking), the
 flows are counts of strictly better and strictly worse alternatives, found by
 sorting in O(n log n) per criterion. The final choice's criteria (V-shape,
 p = the range over the front) reduce to a weighted sum: see
@@ -77,7 +77,7 @@ class Flows(NamedTuple):
 def _threshold(x: FloatArray) -> FloatArray:
     """An alternative with value x (maximised) strictly beats every value below this.
 
-    MODEL.md's tolerance is max(1e-6, 1e-9 * max(|a|, |b|)); here it is the
+    docs/model.md's tolerance is max(1e-6, 1e-9 * max(|a|, |b|)); here it is the
     preferred value's own max(1e-6, 1e-9 * |a|) so that a sort can count it.
     The two differ only when |d| lies within about 1e-18 * |a| of the
     threshold, below the resolution of a float64, and using one rule in both
@@ -152,7 +152,7 @@ def usual_net_flows(
 ) -> FloatArray:
     """phi under the usual criterion for every column, in O(n log n) per column.
 
-    A tie within MODEL.md's tolerance is no preference (see ``_threshold``).
+    A tie within docs/model.md's tolerance is no preference (see ``_threshold``).
     """
     x, w = _prepare(matrix, weights, minimize)
     return _usual_flows(x, w).net
@@ -163,9 +163,9 @@ def range_vshape_net_flows(
 ) -> list[float]:
     """phi with every criterion minimised and V-shaped, p_j = its range over ``rows``.
 
-    MODEL.md's final choice. For criterion j let ``lo_j`` and ``p_j`` be the
+    docs/model.md's final choice. For criterion j let ``lo_j`` and ``p_j`` be the
     smallest value and the range (max minus min) of its column; a range
-    within MODEL.md's tolerance (``isclose(max, min)``) counts for nothing.
+    within docs/model.md's tolerance (``isclose(max, min)``) counts for nothing.
     The V-shape criterion with threshold p_j is
     ``P_j(a, b) = min(1, max(0, (g_j(b) - g_j(a)) / p_j))``; no deviation
     exceeds the range, so with ``h_j(a) = (g_j(a) - lo_j) / p_j`` in [0, 1],

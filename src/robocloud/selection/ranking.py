@@ -14,7 +14,7 @@ from robocloud.errors import InvalidInput
 from robocloud.selection.problem import CoalitionProblem
 from robocloud.selection.promethee import rank_order, usual_net_flows
 
-# (time weight, cost weight) per priority, as MODEL.md fixes them.
+# (time weight, cost weight) per priority, as docs/model.md fixes them.
 PRIORITY_WEIGHTS: dict[str, tuple[float, float]] = {
     "balanced": (0.5, 0.5),
     "time": (0.75, 0.25),

@@ -1,4 +1,4 @@
-"""What ``select`` returns, in MODEL.md's output shape plus how complete it is."""
+"""What ``select`` returns, in docs/model.md's output shape plus how complete it is."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ OptimizerName = Literal["exact", "mopso"]
 
 @dataclass(frozen=True)
 class SelectionResult:
-    """MODEL.md's fields, then:
+    """docs/model.md's fields, then:
 
     - ``complete``: False when the time budget cut the search (or, with no
       coalition, when it ran out before the task was proven infeasible).
@@ -42,7 +42,7 @@ class SelectionResult:
     stages: tuple[tuple[str, float], ...] = field(default=(), compare=False)
 
     def to_json(self) -> dict[str, Any]:
-        """MODEL.md's ``select`` output, and ``complete``, ``bound`` and ``note``."""
+        """docs/model.md's ``select`` output, and ``complete``, ``bound`` and ``note``."""
         bound = self.bound
         return {
             "candidates": self.candidates,

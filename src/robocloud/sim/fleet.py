@@ -60,7 +60,7 @@ BATCH_SIZE = 1000  # states in one batch of a gateway (about 400 KB)
 
 
 class FleetSimulator:
-    """``robots`` (MODEL.md robot dicts, optionally with ``kind``, or Robots) of ``cloud``.
+    """``robots`` (docs/model.md robot dicts, optionally with ``kind``, or Robots) of ``cloud``.
 
     ``churn`` lets robots start and end background activities on their own
     (``robocloud.sim.churn``); without it a robot changes only by commands

@@ -8,7 +8,7 @@
     busy --cancel--> idle, where it stands
 
 A task's robot drives straight to the location at its speed, then works for
-the execution time of the capabilities it was told to use (MODEL.md's
+the execution time of the capabilities it was told to use (docs/model.md's
 exec_i); progress runs from 0 to 1 over the whole task, by time. Battery
 follows ``robocloud.fleet.behaviour``. Besides tasks, a robot may be in a
 background activity (another user's job, charging, maintenance) that the
@@ -98,7 +98,7 @@ class SimRobot:
 
     @classmethod
     def from_json(cls, data: Mapping[str, Any] | Robot) -> SimRobot:
-        """A robot from a MODEL.md robot (a dict may add ``kind``)."""
+        """A robot from a docs/model.md robot (a dict may add ``kind``)."""
         if isinstance(data, Robot):
             return cls(data, _kind_of(data))
         fields = dict(data)

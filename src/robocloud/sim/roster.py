@@ -33,7 +33,7 @@ def cloud_letter(cloud: str) -> str:
 
 
 def cloud_robots(cloud: str, robots: int, seed: int = 0) -> list[dict[str, Any]]:
-    """``robots`` robots of ``cloud`` as JSON dicts: a MODEL.md robot plus ``kind``."""
+    """``robots`` robots of ``cloud`` as JSON dicts: a docs/model.md robot plus ``kind``."""
     keys.check_chunk(cloud, "cloud")
     if seed < 0:
         raise InvalidInput(f"seed must be 0 or more, not {seed}.", field="seed")

@@ -96,7 +96,7 @@ def cloud_names(clouds: int) -> list[str]:
 
 
 def wildfire_scenario(robots: int = 1000, clouds: int = 3, seed: int = 0) -> dict[str, Any]:
-    """MODEL.md's ``select`` input for the thesis's wildfire scenario."""
+    """docs/model.md's ``select`` input for the thesis's wildfire scenario."""
     return {
         "robots": wildfire_robots(robots, clouds, seed),
         "task": wildfire_task(seed),

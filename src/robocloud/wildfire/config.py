@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 # The simulator's forest (robocloud.sim.scenario draws robots over 2000 m x 2000 m).
 DEFAULT_FOREST = (0.0, 0.0, 2000.0, 2000.0)
-# Coordinates beyond this are typing mistakes, not forests (MODEL.md's positions are metres).
+# Coordinates beyond this are typing mistakes, not forests (docs/model.md's positions are metres).
 MAX_EXTENT = 1e7
 MAX_CURRENCY_CHARS = 12
 

@@ -2,7 +2,7 @@
 
 The IaaS lists each robot's capability names; whether one is sensing or
 actuating is read from the robot when the IaaS says (``capability_kinds``, or
-capabilities given as MODEL.md's objects) and otherwise from the names the
+capabilities given as docs/model.md's objects) and otherwise from the names the
 thesis's robots carry. An unknown name is offered as sensing: the selection
 treats both kinds alike, the kind only decides where the form lists it.
 """

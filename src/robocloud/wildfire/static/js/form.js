@@ -1,4 +1,4 @@
-// "Send a Request": the task form. Every field is checked here as MODEL.md
+// "Send a Request": the task form. Every field is checked here as docs/model.md
 // asks (and the fire must be in the application's forest), and the error is
 // shown beside its field; the IaaS's own sentence (422) is placed beside the
 // field it names, in the form's words.

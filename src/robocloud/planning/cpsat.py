@@ -33,7 +33,7 @@ mission's ``max_time``; ``time``: by the best makespan; ``balanced``: by
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass
 
 from ortools.sat.python import cp_model
@@ -69,8 +69,24 @@ def choose_scale(horizon: float) -> int:
 class MissionModel:
     """The CP-SAT model of one problem; built once, solved in phases."""
 
-    def __init__(self, problem: Problem, horizon: float, scale: int | None = None) -> None:
+    def __init__(
+        self,
+        problem: Problem,
+        horizon: float,
+        scale: int | None = None,
+        *,
+        fixed: Mapping[int, Sequence[int]] | None = None,
+        allowed: Collection[int] | None = None,
+    ) -> None:
+        """``fixed``: robots whose route is given (the large-neighbourhood search
+        keeps them); the others may do only the tasks of ``allowed`` (None: any).
+        With neither, the whole problem, and alike robots' symmetry broken."""
         self.problem = problem
+        self.fixed = dict(fixed or {})
+        self.fixed_members: list[list[int]] = [[] for _ in range(problem.n_tasks)]
+        for i, sequence in self.fixed.items():
+            for k in sequence:
+                self.fixed_members[k].append(i)
         self.scale = scale or choose_scale(horizon)
         self.model = cp_model.CpModel()
         p, model = problem, self.model
@@ -81,7 +97,9 @@ class MissionModel:
         self.horizon = big
         self.x: dict[tuple[int, int], cp_model.IntVar] = {}
         self.arcs: dict[tuple[int, int, int], cp_model.IntVar] = {}  # (i, from, to), 0 = depot
-        self.idle: list[cp_model.IntVar] = []
+        self.idle: dict[int, cp_model.IntVar] = {}
+        # When each robot is done; the makespan is the latest.
+        self.arrival = [model.new_int_var(0, big, f"arrival{i}") for i in range(p.n_robots)]
         self.start = [model.new_int_var(0, big, f"s{k}") for k in range(p.n_tasks)]
         self.end = [model.new_int_var(0, big, f"e{k}") for k in range(p.n_tasks)]
         self.makespan = model.new_int_var(0, big, "makespan")
@@ -101,17 +119,30 @@ class MissionModel:
             variable.append(len(works) > 1)
             model.add(self.end[k] == self.start[k] + duration)
             model.new_interval_var(self.start[k], duration, self.end[k], f"task{k}")
+        for k in range(p.n_tasks):
+            for i in self.fixed_members[k]:
+                if variable[k]:
+                    model.add(durations[k] >= self._up(p.work[i][k]))
+        for i, sequence in self.fixed.items():
+            self._follow(i, sequence)
         for i in range(p.n_robots):
+            if i in self.fixed:
+                continue
             intervals = []
-            mine = [k for k in range(p.n_tasks) if p.useful[i][k]]
+            mine = [
+                k for k in range(p.n_tasks)
+                if p.useful[i][k] and (allowed is None or k in allowed)
+            ]
             circuit: list[tuple[int, int, cp_model.LiteralT]] = []
             # The route's driving and working time, waits left out: a linear bound on
             # the robot's arrival that the LP relaxation sees (the circuit alone is weak).
             route: list[cp_model.LinearExprT] = []
             idle = model.new_bool_var(f"idle{i}")
-            self.idle.append(idle)
+            self.idle[i] = idle
             circuit.append((0, 0, idle))
-            model.add(self.makespan >= self._up(p.idle_arrival(i))).only_enforce_if(idle)
+            arrival = self.arrival[i]
+            model.add(self.makespan >= arrival)
+            model.add(arrival >= self._up(p.idle_arrival(i))).only_enforce_if(idle)
             per_m = p.travel_cost_per_m[i] * COST_SCALE
             if p.start_end_distance is not None:
                 cost_terms.append(idle * round(per_m * p.start_end_distance[i]))
@@ -140,7 +171,7 @@ class MissionModel:
                 self.arcs[i, k + 1, 0] = last
                 circuit.append((k + 1, 0, last))
                 model.add(
-                    self.makespan >= self.end[k] + self._up(p.travel_to_end(i, k))
+                    arrival >= self.end[k] + self._up(p.travel_to_end(i, k))
                 ).only_enforce_if(last)
                 route.append(last * self._up(p.travel_to_end(i, k)))
                 if p.end_distance is not None:
@@ -157,15 +188,16 @@ class MissionModel:
                     cost_terms.append(arc * round(per_m * p.task_distance[j][k]))
                     route.append(arc * self._up(p.travel_between(i, j, k)))
             route.append(idle * self._up(p.idle_arrival(i)))
-            model.add(self.makespan >= sum(route))
+            model.add(arrival >= sum(route))
             model.add_circuit(circuit)
             model.add_no_overlap(intervals)
         for k in range(p.n_tasks):
             for capability, count in p.need[k].items():
+                already = sum(1 for i in self.fixed_members[k] if capability in p.brings[i])
                 model.add(
                     sum(self.x[i, k] for i in range(p.n_robots) if capability in p.brings[i]
                         and (i, k) in self.x)
-                    >= count
+                    >= count - already
                 )
             # A redundant bound: someone must drive from k to the end.
             if p.end_distance is not None:
@@ -175,37 +207,59 @@ class MissionModel:
                 model.add(self.makespan >= self.end[k])
         for j, k in p.precedence:
             model.add(self.start[k] >= self.end[j])
+        self.twins = _twins(p) if fixed is None and allowed is None else []
         self._break_symmetry()
         self.cost = sum(cost_terms) if cost_terms else 0
         self.has_cost = any(
             c for c in p.travel_cost_per_m
         ) or any(c for row in p.use_cost for c in row)
 
+    def _follow(self, i: int, sequence: Sequence[int]) -> None:
+        """A kept robot: its route is fixed, only its times may move."""
+        p, model = self.problem, self.model
+        arrival = self.arrival[i]
+        model.add(self.makespan >= arrival)
+        if not sequence:
+            model.add(arrival >= self._up(p.idle_arrival(i)))
+            return
+        model.add(self.start[sequence[0]] >= self._up(p.travel_from_start(i, sequence[0])))
+        for j, k in zip(sequence, sequence[1:], strict=False):
+            model.add(self.start[k] >= self.end[j] + self._up(p.travel_between(i, j, k)))
+        model.add(arrival >= self.end[sequence[-1]] + self._up(p.travel_to_end(i, sequence[-1])))
+
     def _break_symmetry(self) -> None:
         """Of two robots alike in everything, the first does the lowest-numbered task.
 
         Valid because swapping two such robots' whole routes changes no time
         and no cost: so for each task k, the second robot may do k only if the
-        first does some task numbered k or lower.
+        first does some task numbered k or lower (``canonical`` puts any plan
+        in this form).
         """
-        p = self.problem
-        seen: dict[tuple[object, ...], int] = {}
-        for i in range(p.n_robots):
-            key = (
-                p.brings[i], p.start_distance[i], p.speed[i], p.work[i], p.use_cost[i],
-                p.travel_cost_per_m[i],
-                None if p.start_end_distance is None else p.start_end_distance[i],
-            )
-            twin = seen.get(key)
-            seen[key] = i
-            if twin is None:
-                continue
-            for k in range(p.n_tasks):
-                if (i, k) in self.x:
-                    self.model.add(
-                        self.x[i, k] <= sum(self.x[twin, j] for j in range(k + 1)
-                                            if (twin, j) in self.x)
-                    )
+        for group in self.twins:
+            for twin, i in zip(group, group[1:], strict=False):
+                for k in range(self.problem.n_tasks):
+                    if (i, k) in self.x:
+                        self.model.add(
+                            self.x[i, k]
+                            <= sum(self.x[twin, j] for j in range(k + 1) if (twin, j) in self.x)
+                        )
+
+    def canonical(self, schedule: Schedule) -> Schedule:
+        """The same plan with alike robots' routes swapped as ``_break_symmetry`` wants."""
+        rename = list(range(self.problem.n_robots))
+        for group in self.twins:
+            routes = sorted(group, key=lambda i: min(schedule.sequences[i], default=1 << 30))
+            for new, old in zip(group, routes, strict=True):
+                rename[old] = new
+        if rename == list(range(self.problem.n_robots)):
+            return schedule
+        sequences = [()] * self.problem.n_robots
+        for old, new in enumerate(rename):
+            sequences[new] = schedule.sequences[old]
+        coalitions = [tuple(sorted(rename[i] for i in c)) for c in schedule.coalitions]
+        again = timed(self.problem, coalitions, sequences)
+        assert again is not None
+        return again
 
     def _up(self, value: float) -> int:
         return math.ceil(value * self.scale - 1e-9)
@@ -219,6 +273,7 @@ class MissionModel:
         """Warm start from a plan: its memberships, routes and (scaled) times."""
         p, model = self.problem, self.model
         model.clear_hints()
+        schedule = self.canonical(schedule)
         times = earliest(
             p,
             schedule.coalitions,
@@ -234,21 +289,25 @@ class MissionModel:
         for (i, k), x in self.x.items():
             model.add_hint(x, i in schedule.coalitions[k])
         used = set()
-        arrival = 0
+        latest = 0
         for i, sequence in enumerate(schedule.sequences):
-            model.add_hint(self.idle[i], not sequence)
+            if i in self.idle:
+                model.add_hint(self.idle[i], not sequence)
             route = [0, *(k + 1 for k in sequence), 0] if sequence else []
             used.update((i, a, b) for a, b in zip(route, route[1:], strict=False))
-            if sequence:
-                arrival = max(arrival, end[sequence[-1]] + self._up(p.travel_to_end(i, sequence[-1])))
-            else:
-                arrival = max(arrival, self._up(p.idle_arrival(i)))
+            arrival = (
+                end[sequence[-1]] + self._up(p.travel_to_end(i, sequence[-1]))
+                if sequence
+                else self._up(p.idle_arrival(i))
+            )
+            model.add_hint(self.arrival[i], arrival)
+            latest = max(latest, arrival)
         for key, arc in self.arcs.items():
             model.add_hint(arc, key in used)
         for k in range(p.n_tasks):
             model.add_hint(self.start[k], start[k])
             model.add_hint(self.end[k], end[k])
-        model.add_hint(self.makespan, arrival)
+        model.add_hint(self.makespan, latest)
 
     def solve(
         self,
@@ -263,7 +322,7 @@ class MissionModel:
         if hint is not None:
             self.hint(hint)
         self.model.minimize(self.makespan)
-        solver = _solver(time_limit, seed, workers)
+        solver = make_solver(time_limit, seed, workers)
         status = solver.solve(self.model)
         if status == cp_model.INFEASIBLE:
             return Outcome(None, 0.0, False, True)
@@ -271,7 +330,7 @@ class MissionModel:
             return Outcome(hint, 0.0, False, False)
         optimal = status == cp_model.OPTIMAL
         bound = max(0.0, solver.best_objective_bound / self.scale - self.slack)
-        found = self._read(solver)
+        found = self.read(solver)
         if hint is not None and hint.makespan < found.makespan:
             found = hint
         remaining = time_limit - solver.wall_time
@@ -292,18 +351,20 @@ class MissionModel:
         self.hint(fastest)
         self.model.add(self.makespan <= limit)
         self.model.minimize(self.cost)
-        solver = _solver(time_limit, seed, workers)
+        solver = make_solver(time_limit, seed, workers)
         status = solver.solve(self.model)
         if status not in (cp_model.OPTIMAL, cp_model.FEASIBLE):
             return fastest
-        cheaper = self._read(solver)
+        cheaper = self.read(solver)
         return cheaper if cheaper.cost <= fastest.cost else fastest
 
-    def _read(self, solver: cp_model.CpSolver) -> Schedule:
+    def read(self, solver: cp_model.CpSolver) -> Schedule:
         p = self.problem
         coalitions = [
-            tuple(i for i in range(p.n_robots) if (i, k) in self.x and solver.boolean_value(
-                self.x[i, k]))
+            tuple(sorted(
+                [i for i in range(p.n_robots) if (i, k) in self.x and solver.boolean_value(
+                    self.x[i, k])] + self.fixed_members[k]
+            ))
             for k in range(p.n_tasks)
         ]
         following: dict[tuple[int, int], int] = {
@@ -311,6 +372,9 @@ class MissionModel:
         }
         sequences = []
         for i in range(p.n_robots):
+            if i in self.fixed:
+                sequences.append(tuple(self.fixed[i]))
+                continue
             route: list[int] = []
             node = following.get((i, 0), 0)
             while node != 0:
@@ -322,7 +386,21 @@ class MissionModel:
         return pruned(p, schedule)
 
 
-def _solver(time_limit: float, seed: int, workers: int) -> cp_model.CpSolver:
+def _twins(problem: Problem) -> list[list[int]]:
+    """Groups of robots alike in everything the model reads (groups of one left out)."""
+    groups: dict[tuple[object, ...], list[int]] = {}
+    p = problem
+    for i in range(p.n_robots):
+        key = (
+            p.brings[i], p.start_distance[i], p.speed[i], p.work[i], p.use_cost[i],
+            p.travel_cost_per_m[i],
+            None if p.start_end_distance is None else p.start_end_distance[i],
+        )
+        groups.setdefault(key, []).append(i)
+    return [g for g in groups.values() if len(g) > 1]
+
+
+def make_solver(time_limit: float, seed: int, workers: int) -> cp_model.CpSolver:
     solver = cp_model.CpSolver()
     parameters = solver.parameters
     parameters.max_time_in_seconds = max(0.01, time_limit)

@@ -1,0 +1,95 @@
+"""A good first plan, fast: list scheduling by earliest start.
+
+Repeatedly, among the tasks whose predecessors are all planned, take the one
+that can start first, with the coalition that lets it start first, and append
+it to its members' routes. The earliest coalition of one task is found
+exactly by :func:`earliest_coalition`. The plan warm-starts the exact model
+and the large-neighbourhood search (``lns.py``).
+"""
+
+from __future__ import annotations
+
+import math
+import random
+from collections.abc import Sequence
+
+from robocloud.planning.problem import Problem
+from robocloud.planning.schedule import Schedule, timed
+
+
+def earliest_coalition(
+    problem: Problem, k: int, ready_at: Sequence[float]
+) -> tuple[float, tuple[int, ...]] | None:
+    """The earliest time task ``k`` can start, and a minimal coalition that makes it.
+
+    ``ready_at[i]``: when robot i could be at the task. Taking the robots in
+    order of arrival and stopping as soon as those taken cover the task gives
+    the earliest start: no coalition can start before its last member arrives,
+    and any coalition that covers only with robots arriving by t is covered by
+    the robots arriving by t.
+    """
+    order = sorted(
+        (i for i in range(problem.n_robots) if problem.useful[i][k]), key=lambda i: (ready_at[i], i)
+    )
+    missing = dict(problem.need[k])
+    taken: list[int] = []
+    for i in order:
+        if not any(missing.get(c, 0) > 0 for c in problem.brings[i]):
+            continue
+        taken.append(i)
+        for c in problem.brings[i]:
+            if missing.get(c, 0) > 0:
+                missing[c] -= 1
+        if not any(missing.values()):
+            return ready_at[i], problem.minimal(k, taken)
+    return None
+
+
+def construct(problem: Problem, seed: int | None = None) -> Schedule | None:
+    """The list-scheduling plan; with a seed, ties and near-ties are broken at random
+    (the LNS restarts from such variants). None when some task cannot be covered."""
+    rng = random.Random(seed)
+    m, n = problem.n_tasks, problem.n_robots
+    before = problem.predecessors()
+    free_at = [0.0] * n
+    last: list[int | None] = [None] * n
+    end = [0.0] * m
+    planned = [False] * m
+    coalitions: list[tuple[int, ...]] = [()] * m
+    sequences: list[list[int]] = [[] for _ in range(n)]
+    for _ in range(m):
+        best: tuple[float, int, tuple[int, ...], float] | None = None
+        for k in range(m):
+            if planned[k] or not all(planned[j] for j in before[k]):
+                continue
+            released = max((end[j] for j in before[k]), default=0.0)
+            ready_at = [
+                (
+                    problem.travel_from_start(i, k)
+                    if last[i] is None
+                    else free_at[i] + problem.travel_between(i, last[i], k)  # type: ignore[arg-type]
+                )
+                if problem.useful[i][k]
+                else math.inf
+                for i in range(n)
+            ]
+            found = earliest_coalition(problem, k, ready_at)
+            if found is None:
+                return None
+            _, members = found
+            start = max(released, *(ready_at[i] for i in members))
+            finish = start + problem.duration(k, members)
+            # Rank by finish; a seed perturbs the ranking a little.
+            key = finish * (1.0 + (rng.random() * 0.1 if seed is not None else 0.0))
+            if best is None or key < best[0]:
+                best = (key, k, members, finish)
+        assert best is not None  # precedence has no cycle
+        _, k, members, finish = best
+        planned[k] = True
+        coalitions[k] = members
+        end[k] = finish  # appending a task never moves the ones planned before it
+        for i in members:
+            sequences[i].append(k)
+            free_at[i] = finish
+            last[i] = k
+    return timed(problem, coalitions, sequences)

@@ -5,6 +5,7 @@
     robocloud select SCENARIO.json [--optimizer auto|exact|mopso] [--seed N] [--pool-size K]
                      [--budget SECONDS] [--reader columnar|objects] [--timings]
     robocloud scenario wildfire [--robots 1000] [--clouds 3] [--seed N] [--output FILE]
+    robocloud plan FILE [--time-limit S] [--seed N]    (robocloud.cli.plan_command)
     robocloud iaas --cloud NAME ...       (robocloud.cli.iaas_command)
     robocloud sim --cloud NAME ...        (robocloud.sim.command)
     robocloud wildfire --iaas URL ...     (robocloud.wildfire.command)
@@ -176,6 +177,17 @@ def build_parser() -> argparse.ArgumentParser:
     scenario.add_argument("--output", metavar="FILE", help="write here instead of stdout")
     _add_log_level(scenario)
     scenario.set_defaults(command=scenario_command, command_name="scenario")
+
+    from robocloud.cli.plan_command import add_plan_arguments, plan_command
+
+    plan = commands.add_parser(
+        "plan",
+        help="plan a mission of several tasks (or an MRTA-Benchmark instance)",
+        description="Read a mission or an MRTA-Benchmark instance and print its plan as JSON.",
+    )
+    add_plan_arguments(plan)
+    _add_log_level(plan)
+    plan.set_defaults(command=plan_command, command_name="plan")
 
     iaas = commands.add_parser(
         "iaas",

@@ -1,0 +1,140 @@
+"""Plan a mission: ``solve(problem, time_limit, seed)``.
+
+CP-SAT runs in a child process (``worker.py``): OR-Tools bundles its own
+HiGHS library under the same name as the ``highspy`` package the coalition
+selection uses (``libhighs.so.1``, versions 1.12 and 1.15), and a process
+can load only one of them; whichever is imported second fails. The child
+imports OR-Tools and never the selection, so both work from any process.
+
+Small missions go to the exact model (``cpsat.py``), warm-started from the
+construction (``construction.py``): it proves its plan optimal when it can
+within the time limit. Larger ones take the anytime method: the construction,
+then large-neighbourhood search (``lns.py``) until the time limit. Either
+way the plan comes with a lower bound on the makespan (CP-SAT's, or
+``bounds.py``'s when larger) and the gap between them.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, replace
+from typing import Literal
+
+from robocloud.planning.bounds import lower_bound
+from robocloud.planning.construction import construct
+from robocloud.planning.problem import Problem
+from robocloud.planning.schedule import Schedule
+
+# Up to this many (tasks squared times robots), the exact model; measured in
+# benchmarks/missions.py: 8 tasks and 3 robots (192) are proven in a fraction
+# of a second, 15 and 5 (1,125) are not proven within 120 s, and the anytime
+# method does better there within 10 s.
+EXACT_SIZE = 600
+DEFAULT_TIME_LIMIT = 10.0
+
+Method = Literal["exact", "anytime"]
+
+
+@dataclass(frozen=True)
+class Plan:
+    schedule: Schedule | None
+    lower_bound: float | None
+    optimal: bool
+    method: Method
+    elapsed_s: float
+    reason: str | None  # why there is no plan
+
+    @property
+    def gap(self) -> float | None:
+        """(makespan - lower bound) / makespan: how much shorter a plan could be, at most."""
+        if self.schedule is None or self.lower_bound is None:
+            return None
+        if self.schedule.makespan <= 0:
+            return 0.0
+        return max(0.0, (self.schedule.makespan - self.lower_bound) / self.schedule.makespan)
+
+
+def choose_method(problem: Problem) -> Method:
+    size = problem.n_tasks**2 * problem.n_robots
+    return "exact" if size <= EXACT_SIZE else "anytime"
+
+
+def solve(
+    problem: Problem,
+    time_limit: float = DEFAULT_TIME_LIMIT,
+    seed: int = 0,
+    method: Method | None = None,
+) -> Plan:
+    """The best plan found within ``time_limit`` seconds; the same seed, the same plan
+    (unless the time limit cuts the search at a different step).
+
+    Runs :func:`solve_here` in a child process (see the module's docstring);
+    the time limit covers the child's start.
+    """
+    from robocloud.planning.worker import run_worker
+
+    started = time.perf_counter()
+    plan = run_worker(problem, time_limit, seed, method)
+    return replace(plan, elapsed_s=time.perf_counter() - started)
+
+
+def solve_here(
+    problem: Problem,
+    time_limit: float = DEFAULT_TIME_LIMIT,
+    seed: int = 0,
+    method: Method | None = None,
+    started: float | None = None,
+) -> Plan:
+    """``solve`` in this process: it imports OR-Tools (never with ``highspy`` loaded).
+
+    ``started``: the ``time.perf_counter()`` the time limit counts from."""
+    from robocloud.planning.cpsat import MissionModel
+    from robocloud.planning.lns import improve
+
+    started = time.perf_counter() if started is None else started
+    method = method or choose_method(problem)
+
+    def done(
+        schedule: Schedule | None, bound: float | None, optimal: bool, reason: str | None = None
+    ) -> Plan:
+        return Plan(schedule, bound, optimal, method, time.perf_counter() - started, reason)
+
+    missing = problem.uncoverable()
+    if missing is not None:
+        k, capability = missing
+        count = problem.need[k][capability]
+        have = sum(1 for b in problem.brings if capability in b)
+        return done(None, None, False,
+                    f"task {problem.task_ids[k]} needs {count} robots bringing {capability!r}, "
+                    f"but only {have} of the candidates do.")
+    first = construct(problem)
+    assert first is not None  # every task can be covered
+    analytic = lower_bound(problem)
+    if problem.n_tasks == 0:
+        return done(first, first.makespan, True)
+    if method == "exact":
+        model = MissionModel(problem, first.makespan)
+        left = time_limit - (time.perf_counter() - started)
+        outcome = model.solve(max(0.01, left), seed, hint=first)
+        if outcome.infeasible:
+            return done(None, None, False, _too_long(problem))
+        best = outcome.schedule or first
+        bound = max(outcome.lower_bound, analytic)
+        optimal = outcome.optimal
+    else:
+        left = time_limit - (time.perf_counter() - started)
+        best = improve(problem, first, left, seed).schedule
+        bound, optimal = analytic, False
+    bound = min(bound, best.makespan)
+    if problem.max_time is not None and best.makespan > problem.max_time + 1e-6:
+        return done(None, bound, False, _too_long(problem, best.makespan))
+    return done(best, bound, optimal)
+
+
+def _too_long(problem: Problem, found: float | None = None) -> str:
+    if found is None:
+        return f"no plan can finish within max_time ({problem.max_time:g} s)."
+    return (
+        f"the shortest plan found takes {found:.1f} s, more than max_time "
+        f"({problem.max_time:g} s)."
+    )

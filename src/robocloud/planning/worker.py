@@ -1,0 +1,62 @@
+"""The child process that runs CP-SAT: ``python -m robocloud.planning.worker``.
+
+Why a child: see ``solve.py``. The parent writes a pickled request (the
+problem, the time limit, the seed, the method and the wall-clock time the
+limit counts from) to the child's stdin; the child writes the pickled
+:class:`~robocloud.planning.solve.Plan` to stdout. Both ends are this
+package, on a pipe nobody else holds.
+"""
+
+from __future__ import annotations
+
+import pickle
+import subprocess
+import sys
+import time
+from typing import TYPE_CHECKING
+
+from robocloud.errors import RoboCloudError
+
+if TYPE_CHECKING:
+    from robocloud.planning.problem import Problem
+    from robocloud.planning.solve import Method, Plan
+
+# How long past its time limit the child may take (its start, building the
+# model, writing the plan) before it is stopped.
+GRACE_S = 60.0
+
+
+def run_worker(problem: Problem, time_limit: float, seed: int, method: Method | None) -> Plan:
+    request = pickle.dumps((problem, time_limit, seed, method, time.time()))
+    try:
+        done = subprocess.run(
+            [sys.executable, "-m", "robocloud.planning.worker"],
+            input=request,
+            capture_output=True,
+            timeout=time_limit + GRACE_S,
+            check=False,
+        )
+    except subprocess.TimeoutExpired:
+        raise RoboCloudError(
+            f"the planner did not answer within {time_limit + GRACE_S:g} s and was stopped."
+        ) from None
+    if done.returncode != 0:
+        last = (done.stderr.decode(errors="replace").strip().splitlines() or ["no message"])[-1]
+        raise RoboCloudError(f"the planner stopped with exit code {done.returncode}: {last}")
+    plan: Plan = pickle.loads(done.stdout)  # noqa: S301 (our own child, on our own pipe)
+    return plan
+
+
+def main() -> int:
+    from robocloud.planning.solve import solve_here
+
+    problem, time_limit, seed, method, sent = pickle.loads(sys.stdin.buffer.read())
+    # The limit counts from the parent's call: take off the child's start.
+    started = time.perf_counter() - max(0.0, time.time() - sent)
+    plan = solve_here(problem, time_limit, seed, method, started=started)
+    sys.stdout.buffer.write(pickle.dumps(plan))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

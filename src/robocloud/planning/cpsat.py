@@ -32,6 +32,7 @@ mission's ``max_time``; ``time``: by the best makespan; ``balanced``: by
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass
@@ -223,7 +224,7 @@ class MissionModel:
             model.add(arrival >= self._up(p.idle_arrival(i)))
             return
         model.add(self.start[sequence[0]] >= self._up(p.travel_from_start(i, sequence[0])))
-        for j, k in zip(sequence, sequence[1:], strict=False):
+        for j, k in itertools.pairwise(sequence):
             model.add(self.start[k] >= self.end[j] + self._up(p.travel_between(i, j, k)))
         model.add(arrival >= self.end[sequence[-1]] + self._up(p.travel_to_end(i, sequence[-1])))
 
@@ -236,7 +237,7 @@ class MissionModel:
         in this form).
         """
         for group in self.twins:
-            for twin, i in zip(group, group[1:], strict=False):
+            for twin, i in itertools.pairwise(group):
                 for k in range(self.problem.n_tasks):
                     if (i, k) in self.x:
                         self.model.add(
@@ -253,7 +254,7 @@ class MissionModel:
                 rename[old] = new
         if rename == list(range(self.problem.n_robots)):
             return schedule
-        sequences = [()] * self.problem.n_robots
+        sequences: list[tuple[int, ...]] = [()] * self.problem.n_robots
         for old, new in enumerate(rename):
             sequences[new] = schedule.sequences[old]
         coalitions = [tuple(sorted(rename[i] for i in c)) for c in schedule.coalitions]
@@ -272,7 +273,7 @@ class MissionModel:
     def hint(self, schedule: Schedule) -> None:
         """Warm start from a plan: its memberships, routes and (scaled) times."""
         p, model = self.problem, self.model
-        model.clear_hints()
+        model.clear_hints()  # type: ignore[no-untyped-call]
         schedule = self.canonical(schedule)
         times = earliest(
             p,
@@ -288,13 +289,13 @@ class MissionModel:
         start, end = times
         for (i, k), x in self.x.items():
             model.add_hint(x, i in schedule.coalitions[k])
-        used = set()
+        used: set[tuple[int, int, int]] = set()
         latest = 0
         for i, sequence in enumerate(schedule.sequences):
             if i in self.idle:
                 model.add_hint(self.idle[i], not sequence)
             route = [0, *(k + 1 for k in sequence), 0] if sequence else []
-            used.update((i, a, b) for a, b in zip(route, route[1:], strict=False))
+            used.update((i, a, b) for a, b in itertools.pairwise(route))
             arrival = (
                 end[sequence[-1]] + self._up(p.travel_to_end(i, sequence[-1]))
                 if sequence
@@ -335,12 +336,17 @@ class MissionModel:
             found = hint
         remaining = time_limit - solver.wall_time
         if self.has_cost and remaining > 0.05:
-            found = self._cheapest(found, solver.value(self.makespan), remaining, seed, workers)
+            found, cheapest = self._cheapest(
+                found, solver.value(self.makespan), remaining, seed, workers
+            )
+            # For cost and balanced, "optimal" is about the cost (under their bound).
+            optimal = cheapest if p.priority != "time" else optimal
         return Outcome(found, min(bound, found.makespan), optimal, False)
 
     def _cheapest(
         self, fastest: Schedule, makespan: int, time_limit: float, seed: int, workers: int
-    ) -> Schedule:
+    ) -> tuple[Schedule, bool]:
+        """The cheapest plan within the priority's makespan bound; proven cheapest?"""
         p = self.problem
         if p.priority == "time":
             limit = makespan
@@ -354,9 +360,10 @@ class MissionModel:
         solver = make_solver(time_limit, seed, workers)
         status = solver.solve(self.model)
         if status not in (cp_model.OPTIMAL, cp_model.FEASIBLE):
-            return fastest
+            return fastest, False
         cheaper = self.read(solver)
-        return cheaper if cheaper.cost <= fastest.cost else fastest
+        proven = status == cp_model.OPTIMAL
+        return (cheaper, proven) if cheaper.cost <= fastest.cost else (fastest, proven)
 
     def read(self, solver: cp_model.CpSolver) -> Schedule:
         p = self.problem
@@ -423,11 +430,11 @@ def solve_exact(
 ) -> Outcome:
     """The exact model within ``time_limit`` seconds, warm-started from ``hint``."""
     if horizon is None:
-        horizon = hint.makespan if hint is not None else _horizon(problem)
+        horizon = hint.makespan if hint is not None else trivial_horizon(problem)
     return MissionModel(problem, horizon).solve(time_limit, seed, hint=hint)
 
 
-def _horizon(problem: Problem) -> float:
+def trivial_horizon(problem: Problem) -> float:
     """A makespan no optimal plan exceeds: every task alone, one after another."""
     total = 0.0
     for k in range(problem.n_tasks):

@@ -73,21 +73,6 @@ class Mission(BaseModel):
     min_battery: Annotated[float, Field(ge=0.0, le=100.0, allow_inf_nan=False)] = 0.0
     execution: Execution = "parallel"
 
-    @model_validator(mode="after")
-    def _names(self) -> Mission:
-        seen: set[str] = set()
-        for task in self.tasks:
-            if task.id in seen:
-                raise ValueError(f"task id {task.id!r} is used twice")
-            seen.add(task.id)
-        for before, after in self.precedence:
-            for name in (before, after):
-                if name not in seen:
-                    raise ValueError(f"precedence names {name!r}, which is no task of the mission")
-            if before == after:
-                raise ValueError(f"precedence puts task {before!r} before itself")
-        return self
-
 
 class MissionInput(BaseModel):
     model_config = ConfigDict(strict=True, extra="forbid", frozen=True)
@@ -127,7 +112,20 @@ def to_problem(document: MissionInput) -> Problem:
         raise InvalidInput(f"robots: id {twice!r} is used twice.", "robots")
     robots = candidates(document.robots, mission)
     tasks = mission.tasks
-    index = {task.id: k for k, task in enumerate(tasks)}
+    index: dict[str, int] = {}
+    for k, task in enumerate(tasks):
+        if task.id in index:
+            raise InvalidInput(f"mission.tasks[{k}].id: {task.id!r} is the id of an earlier "
+                               "task too.", f"mission.tasks[{k}].id")
+        index[task.id] = k
+    for n, (before, after) in enumerate(mission.precedence):
+        field = f"mission.precedence[{n}]"
+        for name in (before, after):
+            if name not in index:
+                raise InvalidInput(f"{field} names {name!r}, which is no task of the mission.",
+                                   field)
+        if before == after:
+            raise InvalidInput(f"{field} puts task {before!r} before itself.", field)
     end = mission.end
     problem = Problem(
         robot_ids=tuple(r.id for r in robots),

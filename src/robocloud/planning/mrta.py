@@ -161,7 +161,8 @@ def read_instance(document: Mapping[str, Any]) -> Problem:
 
 
 def solution(problem: Problem, schedule: Schedule) -> dict[str, Any]:
-    """The dataset's schedule format: ``makespan``, ``n_tasks``, ``n_robots``, ``robot_schedules``."""
+    """The dataset's schedule format: ``makespan``, ``n_tasks``, ``n_robots`` and
+    ``robot_schedules`` (each robot's tasks in order of start)."""
     return {
         "makespan": schedule.makespan,
         "n_tasks": problem.n_tasks,

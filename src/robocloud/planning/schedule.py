@@ -9,6 +9,7 @@ rounded integers (CP-SAT) still reports the exact makespan of its plan.
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TypeVar
@@ -125,7 +126,7 @@ def timed(
             arrival.append(end[sequence[-1]] + problem.travel_to_end(i, sequence[-1]))
             distance = problem.start_distance[i][sequence[0]]
             distance += sum(
-                problem.task_distance[a][b] for a, b in zip(sequence, sequence[1:], strict=False)
+                problem.task_distance[a][b] for a, b in itertools.pairwise(sequence)
             )
             if problem.end_distance is not None:
                 distance += problem.end_distance[sequence[-1]]

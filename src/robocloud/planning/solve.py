@@ -17,6 +17,7 @@ way the plan comes with a lower bound on the makespan (CP-SAT's, or
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import Literal
 
@@ -78,6 +79,19 @@ def solve(
     return replace(plan, elapsed_s=time.perf_counter() - started)
 
 
+def solve_all(
+    problems: Sequence[Problem],
+    time_limit: float = DEFAULT_TIME_LIMIT,
+    seed: int = 0,
+    method: Method | None = None,
+) -> list[Plan]:
+    """``solve`` for each problem, in one child process (its start paid once);
+    ``elapsed_s`` is each plan's own time in the child."""
+    from robocloud.planning.worker import run_batch
+
+    return run_batch(problems, time_limit, seed, method)
+
+
 def solve_here(
     problem: Problem,
     time_limit: float = DEFAULT_TIME_LIMIT,
@@ -88,7 +102,7 @@ def solve_here(
     """``solve`` in this process: it imports OR-Tools (never with ``highspy`` loaded).
 
     ``started``: the ``time.perf_counter()`` the time limit counts from."""
-    from robocloud.planning.cpsat import MissionModel
+    from robocloud.planning.cpsat import BALANCED_SLACK, MissionModel, trivial_horizon
     from robocloud.planning.lns import improve
 
     started = time.perf_counter() if started is None else started
@@ -113,7 +127,14 @@ def solve_here(
     if problem.n_tasks == 0:
         return done(first, first.makespan, True)
     if method == "exact":
-        model = MissionModel(problem, first.makespan)
+        horizon = first.makespan
+        if problem.priority != "time":
+            # A cheaper plan may be longer than the first one: room up to a bound no
+            # plan needs to pass (every task alone, one after another), or max_time.
+            horizon = max(horizon * BALANCED_SLACK, trivial_horizon(problem))
+            if problem.max_time is not None:
+                horizon = min(horizon, max(problem.max_time, first.makespan))
+        model = MissionModel(problem, horizon)
         left = time_limit - (time.perf_counter() - started)
         outcome = model.solve(max(0.01, left), seed, hint=first)
         if outcome.infeasible:

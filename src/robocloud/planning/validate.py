@@ -65,7 +65,12 @@ def check_mrta(
             k = entry["task"]
             if not 1 <= k <= m:
                 continue
-            if entry["start_time"] < free + travel[place][k] - tolerance:
+            if place and entry["start_time"] < free - tolerance:
+                problems.append(
+                    f"robot {i} works on tasks {place} and {k} at once "
+                    f"({k} starts at {entry['start_time']:g}, {place} ends at {free:g})"
+                )
+            elif entry["start_time"] < free + travel[place][k] - tolerance:
                 problems.append(
                     f"robot {i} cannot reach task {k} by {entry['start_time']:g} "
                     f"(it is free at {free:g} and needs {travel[place][k]:g} to get there)"
@@ -123,6 +128,9 @@ def check_mission(
             problems.append(f"task {name} is not planned")
     cost = 0.0
     for name, entry in done.items():
+        for robot_id in entry["robots"]:
+            if robot_id not in plan["routes"]:
+                problems.append(f"task {name}: {robot_id} has no route")
         task = tasks.get(name)
         if task is None:
             problems.append(f"{name} is no task of the mission")

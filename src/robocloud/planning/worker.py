@@ -13,6 +13,7 @@ import pickle
 import subprocess
 import sys
 import time
+from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 from robocloud.errors import RoboCloudError
@@ -27,34 +28,48 @@ GRACE_S = 60.0
 
 
 def run_worker(problem: Problem, time_limit: float, seed: int, method: Method | None) -> Plan:
-    request = pickle.dumps((problem, time_limit, seed, method, time.time()))
+    [plan] = run_batch([problem], time_limit, seed, method)
+    return plan
+
+
+def run_batch(
+    problems: Sequence[Problem], time_limit: float, seed: int, method: Method | None
+) -> list[Plan]:
+    """Each problem planned in turn, each within ``time_limit``, in one child.
+
+    The child's start is counted in the first problem's limit only."""
+    request = pickle.dumps((list(problems), time_limit, seed, method, time.time()))
     try:
         done = subprocess.run(
             [sys.executable, "-m", "robocloud.planning.worker"],
             input=request,
             capture_output=True,
-            timeout=time_limit + GRACE_S,
+            timeout=time_limit * len(problems) + GRACE_S,
             check=False,
         )
     except subprocess.TimeoutExpired:
         raise RoboCloudError(
-            f"the planner did not answer within {time_limit + GRACE_S:g} s and was stopped."
+            f"the planner did not answer within {time_limit * len(problems) + GRACE_S:g} s "
+            "and was stopped."
         ) from None
     if done.returncode != 0:
         last = (done.stderr.decode(errors="replace").strip().splitlines() or ["no message"])[-1]
         raise RoboCloudError(f"the planner stopped with exit code {done.returncode}: {last}")
-    plan: Plan = pickle.loads(done.stdout)  # noqa: S301 (our own child, on our own pipe)
-    return plan
+    plans: list[Plan] = pickle.loads(done.stdout)  # our own child, on our own pipe
+    return plans
 
 
 def main() -> int:
     from robocloud.planning.solve import solve_here
 
-    problem, time_limit, seed, method, sent = pickle.loads(sys.stdin.buffer.read())
+    problems, time_limit, seed, method, sent = pickle.loads(sys.stdin.buffer.read())
     # The limit counts from the parent's call: take off the child's start.
     started = time.perf_counter() - max(0.0, time.time() - sent)
-    plan = solve_here(problem, time_limit, seed, method, started=started)
-    sys.stdout.buffer.write(pickle.dumps(plan))
+    plans = []
+    for problem in problems:
+        plans.append(solve_here(problem, time_limit, seed, method, started=started))
+        started = time.perf_counter()
+    sys.stdout.buffer.write(pickle.dumps(plans))
     return 0
 
 

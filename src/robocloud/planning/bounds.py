@@ -26,13 +26,14 @@ from robocloud.planning.problem import Problem
 
 
 def fewest_members(problem: Problem, k: int) -> int:
-    """The fewest robots that can cover task ``k`` (exact up to 3, else a count bound)."""
+    """At most the fewest robots that can cover task ``k`` (exact for up to 3 among
+    up to 60 able robots)."""
     need = problem.need[k]
     least = max(need.values())
     able = [i for i in range(problem.n_robots) if problem.useful[i][k]]
     for size in range(least, 4):
-        if len(able) > 60 and size > 2:
-            return size
+        if size > 1 and len(able) > 60:
+            return size  # no smaller group covers: still a bound, without the pairs
         for group in itertools.combinations(able, size):
             if problem.covers(k, group):
                 return size

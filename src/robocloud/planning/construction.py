@@ -19,8 +19,9 @@ from robocloud.planning.schedule import Schedule, timed
 
 def earliest_coalition(
     problem: Problem, k: int, ready_at: Sequence[float]
-) -> tuple[float, tuple[int, ...]] | None:
-    """The earliest time task ``k`` can start, and a minimal coalition that makes it.
+) -> tuple[float, tuple[int, ...], frozenset[int]] | None:
+    """The earliest time task ``k`` can start, a minimal coalition that makes it, and
+    the robots taken on the way (only a change to one of them can change the answer).
 
     ``ready_at[i]``: when robot i could be at the task. Taking the robots in
     order of arrival and stopping as soon as those taken cover the task gives
@@ -41,7 +42,7 @@ def earliest_coalition(
             if missing.get(c, 0) > 0:
                 missing[c] -= 1
         if not any(missing.values()):
-            return ready_at[i], problem.minimal(k, taken)
+            return ready_at[i], problem.minimal(k, taken), frozenset(taken)
     return None
 
 
@@ -57,10 +58,12 @@ def construct(problem: Problem, seed: int | None = None) -> Schedule | None:
     planned = [False] * m
     coalitions: list[tuple[int, ...]] = [()] * m
     sequences: list[list[int]] = [[] for _ in range(n)]
+    # Per ready task: (rank, members, finish, robots taken). Planning a task changes
+    # only its members' times, so only the tasks that took one of them are redone.
+    cache: dict[int, tuple[float, tuple[int, ...], float, frozenset[int]]] = {}
     for _ in range(m):
-        best: tuple[float, int, tuple[int, ...], float] | None = None
         for k in range(m):
-            if planned[k] or not all(planned[j] for j in before[k]):
+            if k in cache or planned[k] or not all(planned[j] for j in before[k]):
                 continue
             released = max((end[j] for j in before[k]), default=0.0)
             ready_at = [
@@ -76,15 +79,14 @@ def construct(problem: Problem, seed: int | None = None) -> Schedule | None:
             found = earliest_coalition(problem, k, ready_at)
             if found is None:
                 return None
-            _, members = found
+            _, members, taken = found
             start = max(released, *(ready_at[i] for i in members))
             finish = start + problem.duration(k, members)
             # Rank by finish; a seed perturbs the ranking a little.
-            key = finish * (1.0 + (rng.random() * 0.1 if seed is not None else 0.0))
-            if best is None or key < best[0]:
-                best = (key, k, members, finish)
-        assert best is not None  # precedence has no cycle
-        _, k, members, finish = best
+            rank = finish * (1.0 + (rng.random() * 0.1 if seed is not None else 0.0))
+            cache[k] = (rank, members, finish, taken)
+        k = min(cache, key=lambda j: (cache[j][0], j))
+        _, members, finish, _ = cache.pop(k)
         planned[k] = True
         coalitions[k] = members
         end[k] = finish  # appending a task never moves the ones planned before it
@@ -92,4 +94,7 @@ def construct(problem: Problem, seed: int | None = None) -> Schedule | None:
             sequences[i].append(k)
             free_at[i] = finish
             last[i] = k
+        moved = set(members)
+        for j in [j for j, entry in cache.items() if entry[3] & moved]:
+            del cache[j]
     return timed(problem, coalitions, sequences)

@@ -18,6 +18,7 @@ and turns the rest into a :class:`~robocloud.planning.problem.Problem`.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from typing import Annotated, Any
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -29,10 +30,10 @@ from robocloud.errors import InvalidInput
 from robocloud.planning.problem import Problem
 from robocloud.planning.solve import Plan
 
-# Beyond these a mission is not one fire front but a mistake: the exact model
-# grows with tasks squared times robots.
-MAX_TASKS = 500
-MAX_MISSION_ROBOTS = 2_000
+# Beyond these a mission is not one fire front but a mistake; the construction
+# grows with tasks squared times robots (100 tasks and 1,000 robots: seconds).
+MAX_TASKS = 100
+MAX_MISSION_ROBOTS = 1_000
 
 Seconds = Annotated[float, Field(ge=0.0, le=MAX_TIME, allow_inf_nan=False)]
 
@@ -91,17 +92,23 @@ def candidates(robots: list[Robot], mission: Mission) -> list[Robot]:
     ]
 
 
-def work_time(robot: Robot, task: MissionTask, execution: str) -> float:
-    """How long ``robot`` keeps ``task`` going: its duration, or the capability times
-    of what the robot uses there (their longest in parallel, their sum in sequence);
-    math.inf when it brings nothing the task needs."""
-    used = [robot.capabilities[c] for c in task.required if c in robot.capabilities]
+def work_and_cost(
+    robot: Robot, required: Mapping[str, int], duration: float | None, execution: str
+) -> tuple[float, float]:
+    """How long ``robot`` keeps a task going, and what its capabilities cost there.
+
+    The time is the task's ``duration``, or the capability times of what the
+    robot uses there (their longest in parallel, their sum in sequence);
+    math.inf when it brings nothing the task needs.
+    """
+    used = [robot.capabilities[c] for c in required if c in robot.capabilities]
     if not used:
-        return math.inf
-    if task.duration is not None:
-        return task.duration
+        return math.inf, 0.0
+    cost = sum(c.cost for c in used)
+    if duration is not None:
+        return duration, cost
     times = [c.time for c in used]
-    return max(times) if execution == "parallel" else sum(times)
+    return (max(times) if execution == "parallel" else sum(times)), cost
 
 
 def to_problem(document: MissionInput) -> Problem:
@@ -127,11 +134,16 @@ def to_problem(document: MissionInput) -> Problem:
         if before == after:
             raise InvalidInput(f"{field} puts task {before!r} before itself.", field)
     end = mission.end
+    required = [t.required for t in tasks]
+    terms = [
+        [work_and_cost(r, required[k], t.duration, mission.execution) for k, t in enumerate(tasks)]
+        for r in robots
+    ]
     problem = Problem(
         robot_ids=tuple(r.id for r in robots),
         task_ids=tuple(t.id for t in tasks),
         brings=tuple(frozenset(r.capabilities) for r in robots),
-        need=tuple(t.required for t in tasks),
+        need=tuple(required),
         task_distance=tuple(
             tuple(math.dist(a.location, b.location) for b in tasks) for a in tasks
         ),
@@ -142,14 +154,8 @@ def to_problem(document: MissionInput) -> Problem:
         # A robot the plan leaves out is no part of the mission: it goes nowhere.
         start_end_distance=None,
         speed=tuple(r.speed for r in robots),
-        work=tuple(tuple(work_time(r, t, mission.execution) for t in tasks) for r in robots),
-        use_cost=tuple(
-            tuple(
-                sum(r.capabilities[c].cost for c in t.required if c in r.capabilities)
-                for t in tasks
-            )
-            for r in robots
-        ),
+        work=tuple(tuple(w for w, _ in row) for row in terms),
+        use_cost=tuple(tuple(c for _, c in row) for row in terms),
         travel_cost_per_m=tuple(r.travel_cost_per_m for r in robots),
         precedence=tuple((index[a], index[b]) for a, b in mission.precedence),
         priority=mission.priority,

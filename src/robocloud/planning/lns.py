@@ -2,9 +2,10 @@
 
 Start from the construction's plan; then, until the time is up, free a few
 robots (the neighbourhood: those that finish last, and others drawn at
-random) and let CP-SAT re-plan everything they do, warm-started from the
-current plan, while every other robot keeps its coalitions and its order
-(their times may still move). A better plan (a shorter makespan, or the same
+random, in half the steps their partners at shared tasks first) and let
+CP-SAT share out again the tasks they do, warm-started from the current
+plan, while every other robot keeps its coalitions and its order (their
+times may still move). A better plan (a shorter makespan, or the same
 with robots done earlier in sum) replaces the current one. The neighbourhood
 grows when CP-SAT proves its part optimal quickly and shrinks when it runs
 out of time, so the steps stay a fraction of a second.
@@ -68,6 +69,13 @@ def improve(
         others = [i for i in range(n) if i not in critical]
         rng.shuffle(others)
         rng.shuffle(critical)
+        if rng.random() < 0.5:
+            # Half the steps free the critical robots' partners first: the robots
+            # they wait for at shared tasks.
+            partners = {
+                j for i in critical for k in best.sequences[i] for j in best.coalitions[k]
+            }
+            others.sort(key=lambda i: i not in partners)
         free = set((critical + others)[: max(size, 1)])
         # The freed robots share out the tasks they do now; the others keep theirs.
         theirs = {k for i in free for k in best.sequences[i]}

@@ -46,9 +46,18 @@ def earliest_coalition(
     return None
 
 
-def construct(problem: Problem, seed: int | None = None) -> Schedule | None:
-    """The list-scheduling plan; with a seed, ties and near-ties are broken at random
-    (the LNS restarts from such variants). None when some task cannot be covered."""
+def best_construction(problem: Problem) -> Schedule | None:
+    """The shorter of the two rankings' plans (neither is better on every mission)."""
+    plans = [p for p in (construct(problem), construct(problem, lookahead=False)) if p]
+    return min(plans, key=lambda p: p.makespan, default=None)
+
+
+def construct(
+    problem: Problem, seed: int | None = None, *, lookahead: bool = True
+) -> Schedule | None:
+    """The list-scheduling plan; with a seed, ties and near-ties are broken at random.
+    ``lookahead``: rank a task by its finish less the work of its successors, else by
+    its finish. None when some task cannot be covered."""
     rng = random.Random(seed)
     m, n = problem.n_tasks, problem.n_robots
     before = problem.predecessors()
@@ -61,6 +70,7 @@ def construct(problem: Problem, seed: int | None = None) -> Schedule | None:
     # Per ready task: (rank, members, finish, robots taken). Planning a task changes
     # only its members' times, so only the tasks that took one of them are redone.
     cache: dict[int, tuple[float, tuple[int, ...], float, frozenset[int]]] = {}
+    tail = _tails(problem) if lookahead else [0.0] * m
     for _ in range(m):
         for k in range(m):
             if k in cache or planned[k] or not all(planned[j] for j in before[k]):
@@ -82,8 +92,9 @@ def construct(problem: Problem, seed: int | None = None) -> Schedule | None:
             _, members, taken = found
             start = max(released, *(ready_at[i] for i in members))
             finish = start + problem.duration(k, members)
-            # Rank by finish; a seed perturbs the ranking a little.
-            rank = finish * (1.0 + (rng.random() * 0.1 if seed is not None else 0.0))
+            # Rank by finish, less the work its successors still need after it (a
+            # task others wait for goes first); a seed perturbs the ranking a little.
+            rank = (finish - tail[k]) * (1.0 + (rng.random() * 0.1 if seed is not None else 0.0))
             cache[k] = (rank, members, finish, taken)
         k = min(cache, key=lambda j: (cache[j][0], j))
         _, members, finish, _ = cache.pop(k)
@@ -98,3 +109,21 @@ def construct(problem: Problem, seed: int | None = None) -> Schedule | None:
         for j in [j for j, entry in cache.items() if entry[3] & moved]:
             del cache[j]
     return timed(problem, coalitions, sequences)
+
+
+def _tails(problem: Problem) -> list[float]:
+    """For each task, the least work of the longest chain of successors after it."""
+    order = problem.topological_order()
+    assert order is not None
+    shortest = [
+        min((problem.work[i][k] for i in range(problem.n_robots) if problem.useful[i][k]),
+            default=0.0)
+        for k in range(problem.n_tasks)
+    ]
+    after: list[list[int]] = [[] for _ in range(problem.n_tasks)]
+    for j, k in problem.precedence:
+        after[j].append(k)
+    tail = [0.0] * problem.n_tasks
+    for k in reversed(order):
+        tail[k] = max((shortest[s] + tail[s] for s in after[k]), default=0.0)
+    return tail

@@ -2,7 +2,8 @@
 
 Start from the construction's plan; then, until the time is up, free a few
 robots (the neighbourhood: those that finish last, and others drawn at
-random, in half the steps their partners at shared tasks first) and let
+random; or, in a third of the steps each, first the robots it waits for, or
+the least busy robots able to take one of its tasks) and let
 CP-SAT share out again the tasks they do, warm-started from the current
 plan, while every other robot keeps its coalitions and its order (their
 times may still move). A better plan (a shorter makespan, or the same
@@ -44,6 +45,34 @@ def _score(schedule: Schedule) -> tuple[float, float]:
     return (round(schedule.makespan, 6), round(sum(schedule.arrival), 6))
 
 
+def critical_chain(problem: Problem, schedule: Schedule, robot: int) -> set[int]:
+    """The robots whose lateness makes ``robot`` late: going back from its last task,
+    through the predecessor that ended last or the member that arrived last."""
+    chain = {robot}
+    before = problem.predecessors()
+    sequence = schedule.sequences[robot]
+    current: int | None = sequence[-1] if sequence else None
+    seen: set[int] = set()
+    while current is not None and current not in seen:
+        k = current
+        seen.add(k)
+        start = schedule.start[k]
+        chain.update(schedule.coalitions[k])
+        current = next((j for j in before[k] if schedule.end[j] >= start - 1e-6), None)
+        if current is not None:
+            continue
+        for i in schedule.coalitions[k]:
+            mine = schedule.sequences[i]
+            at = mine.index(k)
+            if at == 0:
+                continue
+            previous = mine[at - 1]
+            if schedule.end[previous] + problem.travel_between(i, previous, k) >= start - 1e-6:
+                current = previous
+                break
+    return chain
+
+
 def improve(
     problem: Problem,
     schedule: Schedule,
@@ -69,13 +98,17 @@ def improve(
         others = [i for i in range(n) if i not in critical]
         rng.shuffle(others)
         rng.shuffle(critical)
-        if rng.random() < 0.5:
-            # Half the steps free the critical robots' partners first: the robots
-            # they wait for at shared tasks.
-            partners = {
-                j for i in critical for k in best.sequences[i] for j in best.coalitions[k]
-            }
-            others.sort(key=lambda i: i not in partners)
+        strategy = rng.randrange(3)
+        if strategy == 1:
+            # Free first the robots of the critical chain: those the last robot
+            # waits for, at shared tasks or through precedence.
+            chain = critical_chain(problem, best, rng.choice(critical))
+            others.sort(key=lambda i: i not in chain)
+        elif strategy == 2:
+            # Free first the least busy robots that could take a task of the last one.
+            theirs_now = [k for i in critical for k in best.sequences[i]]
+            able = {i for i in others if any(problem.useful[i][k] for k in theirs_now)}
+            others.sort(key=lambda i: (i not in able, best.arrival[i]))
         free = set((critical + others)[: max(size, 1)])
         # The freed robots share out the tasks they do now; the others keep theirs.
         theirs = {k for i in free for k in best.sequences[i]}

@@ -22,7 +22,7 @@ from dataclasses import dataclass, replace
 from typing import Literal
 
 from robocloud.planning.bounds import lower_bound
-from robocloud.planning.construction import construct
+from robocloud.planning.construction import best_construction
 from robocloud.planning.problem import Problem
 from robocloud.planning.schedule import Schedule
 
@@ -121,7 +121,7 @@ def solve_here(
         return done(None, None, False,
                     f"task {problem.task_ids[k]} needs {count} robots bringing {capability!r}, "
                     f"but only {have} of the candidates do.")
-    first = construct(problem)
+    first = best_construction(problem)
     assert first is not None  # every task can be covered
     analytic = lower_bound(problem)
     if problem.n_tasks == 0:

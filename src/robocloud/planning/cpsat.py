@@ -421,19 +421,6 @@ def make_solver(time_limit: float, seed: int, workers: int) -> cp_model.CpSolver
     return solver
 
 
-def solve_exact(
-    problem: Problem,
-    time_limit: float,
-    seed: int = 0,
-    hint: Schedule | None = None,
-    horizon: float | None = None,
-) -> Outcome:
-    """The exact model within ``time_limit`` seconds, warm-started from ``hint``."""
-    if horizon is None:
-        horizon = hint.makespan if hint is not None else trivial_horizon(problem)
-    return MissionModel(problem, horizon).solve(time_limit, seed, hint=hint)
-
-
 def trivial_horizon(problem: Problem) -> float:
     """A makespan no optimal plan exceeds: every task alone, one after another."""
     total = 0.0
@@ -446,5 +433,3 @@ def trivial_horizon(problem: Problem) -> float:
     end = max(problem.end_distance or [0.0]) + max(problem.start_end_distance or [0.0])
     return total + (problem.n_tasks + 1) * longest / slowest + end / slowest
 
-
-__all__: Sequence[str] = ("MissionModel", "Outcome", "solve_exact")

@@ -22,6 +22,7 @@ import numpy as np
 from benchmarks import (
     federation,
     fleet,
+    missions,
     nxt,
     ros2,
     select_command,
@@ -52,6 +53,7 @@ SECTIONS: list[Section] = [
     Section("fleet", fleet.run),
     Section("nxt", nxt.run),
     Section("ros2", ros2.run),
+    Section("missions", missions.run),
 ]
 
 

@@ -5,6 +5,7 @@
     robocloud select SCENARIO.json [--optimizer auto|exact|mopso] [--seed N] [--pool-size K]
                      [--budget SECONDS] [--reader columnar|objects] [--timings]
     robocloud scenario wildfire [--robots 1000] [--clouds 3] [--seed N] [--output FILE]
+    robocloud plan FILE [--time-limit S] [--seed N]    (robocloud.cli.plan_command)
     robocloud iaas --cloud NAME ...       (robocloud.cli.iaas_command)
     robocloud sim --cloud NAME ...        (robocloud.sim.command)
     robocloud wildfire --iaas URL ...     (robocloud.wildfire.command)
@@ -60,16 +61,22 @@ from robocloud.cli.exits import (  # noqa: F401 (exit codes: re-exported)
     say,
 )
 from robocloud.cli.iaas_command import add_iaas_arguments, iaas_command
+from robocloud.cli.inputs import (  # noqa: F401 (STDIN, read_text: re-exported)
+    STDIN,
+    check_at_least,
+    read_bytes,
+    read_text,
+    source_name,
+)
 from robocloud.cli.select_input import (  # noqa: F401 (parse_select_input: re-exported)
     check_unique_ids,
     parse_select_input,
 )
-from robocloud.errors import InvalidInput, NotFound
+from robocloud.errors import InvalidInput
 
 if TYPE_CHECKING:
     from robocloud.domain import RobotLike
 
-STDIN = "-"
 
 
 
@@ -141,6 +148,17 @@ def build_parser() -> argparse.ArgumentParser:
     scenario.add_argument("--output", metavar="FILE", help="write here instead of stdout")
     _add_log_level(scenario)
     scenario.set_defaults(command=scenario_command, command_name="scenario")
+
+    from robocloud.cli.plan_command import add_plan_arguments, plan_command
+
+    plan = commands.add_parser(
+        "plan",
+        help="plan a mission of several tasks (or an MRTA-Benchmark instance)",
+        description="Read a mission or an MRTA-Benchmark instance and print its plan as JSON.",
+    )
+    add_plan_arguments(plan)
+    _add_log_level(plan)
+    plan.set_defaults(command=plan_command, command_name="plan")
 
     iaas = commands.add_parser(
         "iaas",
@@ -242,8 +260,8 @@ def _sim_command(args: argparse.Namespace) -> int:
 
     # Everything the simulator would refuse, before it connects to anything.
     check_chunk(args.cloud, "--cloud")
-    _check_at_least("--robots", args.robots, 1)
-    _check_at_least("--seed", args.seed, 0)
+    check_at_least("--robots", args.robots, 1)
+    check_at_least("--seed", args.seed, 0)
     if not args.speedup > 0:  # also refuses nan
         raise InvalidInput(f"--speedup must be more than 0, not {args.speedup}.", "--speedup")
     if not args.connect_timeout >= 0:  # 0: one try
@@ -282,9 +300,9 @@ def select_command(args: argparse.Namespace) -> int:
     from robocloud.selection.pipeline import DEFAULT_BUDGET_S, select
 
     started = time.perf_counter()
-    _check_at_least("--seed", args.seed, 0)
+    check_at_least("--seed", args.seed, 0)
     if args.pool_size is not None:
-        _check_at_least("--pool-size", args.pool_size, 1)
+        check_at_least("--pool-size", args.pool_size, 1)
     budget_s: float | None = DEFAULT_BUDGET_S
     if args.budget is not None:
         if not (args.budget >= 0 and math.isfinite(args.budget)):  # also refuses nan
@@ -292,7 +310,7 @@ def select_command(args: argparse.Namespace) -> int:
                 f"--budget must be 0 (no limit) or more seconds, not {args.budget}.", "--budget"
             )
         budget_s = args.budget or None
-    source = _source_name(args.scenario)
+    source = source_name(args.scenario)
     robots: Sequence[RobotLike]
     if args.reader == "objects":
         robots, task = parse_select_input(read_text(args.scenario), source)
@@ -331,57 +349,18 @@ def select_command(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def read_text(source: str) -> str:
-    """The file's text, or stdin's for ``-``."""
-    if source == STDIN:
-        try:
-            return sys.stdin.read()
-        except UnicodeDecodeError as error:
-            raise InvalidInput(f"stdin is not UTF-8 text ({error.reason}).") from None
-    path = Path(source)
-    try:
-        return path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise NotFound(f"{source}: no such file.", key=source) from None
-    except UnicodeDecodeError as error:
-        raise InvalidInput(f"{source} is not UTF-8 text ({error.reason}).") from None
-    except OSError as error:
-        raise InvalidInput(f"cannot read {source}: {error.strerror or error}.") from None
-
-
-def read_bytes(source: str) -> bytes | str:
-    """The file's bytes, or stdin's for ``-`` (its text when stdin is a text stream
-    only, as in tests); the reader checks that they are UTF-8."""
-    if source == STDIN:
-        buffer = getattr(sys.stdin, "buffer", None)
-        if buffer is None:
-            return read_text(source)
-        data: bytes = buffer.read()
-        return data
-    try:
-        return Path(source).read_bytes()
-    except FileNotFoundError:
-        raise NotFound(f"{source}: no such file.", key=source) from None
-    except OSError as error:
-        raise InvalidInput(f"cannot read {source}: {error.strerror or error}.") from None
-
-
-def _source_name(source: str) -> str:
-    return "stdin" if source == STDIN else source
-
-
 # --- scenario -------------------------------------------------------------
 
 
 def scenario_command(args: argparse.Namespace) -> int:
     from robocloud.sim.scenario import MAX_CLOUDS, wildfire_scenario
 
-    _check_at_least("--robots", args.robots, 1)
+    check_at_least("--robots", args.robots, 1)
     if not 1 <= args.clouds <= MAX_CLOUDS:
         raise InvalidInput(
             f"--clouds must be between 1 and {MAX_CLOUDS}, not {args.clouds}.", field="--clouds"
         )
-    _check_at_least("--seed", args.seed, 0)
+    check_at_least("--seed", args.seed, 0)
     import msgspec
 
     # msgspec writes a million robots in about a second, json.dumps in ten.
@@ -402,11 +381,6 @@ def scenario_command(args: argparse.Namespace) -> int:
             f"cannot write {args.output}: {error.strerror or error}.", field="--output"
         ) from None
     return EXIT_OK
-
-
-def _check_at_least(option: str, value: int, least: int) -> None:
-    if value < least:
-        raise InvalidInput(f"{option} must be at least {least}, not {value}.", field=option)
 
 
 if __name__ == "__main__":

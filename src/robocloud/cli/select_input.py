@@ -53,8 +53,7 @@ from robocloud.selection.filtering import filter_robots
 INPUT_FIELDS = ("robots", "task")
 # Robots decoded at a time: enough that a call's overhead vanishes, few enough
 # that a piece's objects stay in the CPU's caches until they are filtered and
-# freed. Measured on a million robots: 500 and 1,000 take 1.5 s of CPU to
-# read, 10,000 twice that.
+# freed (benchmarks/results/design-notes.md, select-chunk).
 CHUNK = 500
 
 # --- the objects reader ----------------------------------------------------------

@@ -406,14 +406,13 @@ class RequestActor:
         # Read the candidates only when the selection can start at once, and
         # claim the chosen robots before the turn ends: candidates read before
         # a wait for a worker were stale by then, and selections that waited
-        # together picked the same robots (measured at 100 requests/s: 1,132
-        # reservations found a robot taken, for 600 requests).
+        # together picked the same robots (benchmarks/results/design-notes.md,
+        # selection-turn).
         async with shell.selection_turn():
             left_out = exclude | shell.routes.held()
             # On the loop when no read of the store is due: a thread's hand-off
-            # cost more than the filter (measured at 200 requests/s offered,
-            # --busy-after 0.2: 195/s accepted twice, p99 177 and 170 ms, against
-            # 182/s and 181/s, p99 227 and 218 ms, with a thread each time).
+            # cost more than the filter (benchmarks/results/design-notes.md,
+            # filter-on-loop).
             found = shell.view.candidates_at_hand(effect.task, left_out, gathered.robots)
             if found is None:
                 found = await shell.blocking(

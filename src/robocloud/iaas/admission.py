@@ -2,9 +2,8 @@
 
 Accepting what the cloud cannot decide in time makes every request late:
 robots stay held by requests the IaaS has not caught up with, and later ones
-are rejected for want of them, seconds after their 202 (measured at 200
-requests/s on 1,000 robots: 1,510 of 2,000 accepted requests rejected so, the
-median dispatched after 2.9 s). So a new request is refused while
+are rejected for want of them, seconds after their 202
+(benchmarks/results/design-notes.md, load-shedding). So a new request is refused while
 ``max_waiting`` requests wait for their robots, or while at least
 ``BUSY_MIN`` wait and the oldest has waited ``busy_after`` seconds: one slow
 selection alone never refuses any.

@@ -121,7 +121,7 @@ def worker_context() -> Any:
     ``forkserver``: a clean process (not a fork of the IaaS, its threads and
     Zenoh session), started at the first worker, imports numpy and the
     selection pipeline once; each worker is a fork of it. A spawned worker
-    imported them itself (measured: about 1 s of CPU each).
+    imported them itself (benchmarks/results/design-notes.md, forkserver).
     """
     context = multiprocessing.get_context("forkserver")
     context.set_forkserver_preload(["robocloud.selection.pipeline"])
@@ -153,8 +153,7 @@ class Worker:
         readable: on the loop when all of it has arrived, else by a thread
         within the limit (a worker stopped mid-write never holds the loop). A
         thread for every call cost two hand-offs of the GIL a selection, each
-        dearer than the write (measured at 200 requests/s offered: 185 and
-        182/s accepted against 177 and 176/s).
+        dearer than the write (benchmarks/results/design-notes.md, worker-pipe).
 
         A worker that died (killed by the system, say) answers ``("died", why)``.
         """

@@ -64,7 +64,7 @@ REQUEST_ID = re.compile(r"^req-[a-z2-7]{12}$")
 IO_THREADS = 64  # blocking calls at once that wait on the network: robots' acks, other clouds
 # Store calls get threads of their own, few: SQLite writes one at a time anyway,
 # and many threads contending for the GIL while one holds the write lock made
-# every write wait (measured: POST answers of 14 s at 30 requests/s with 64).
+# every write wait (benchmarks/results/design-notes.md, store-threads).
 STORE_THREADS = 4
 UNDECIDED = frozenset({"received", "selecting"})
 
@@ -283,8 +283,8 @@ class RequestService:
         if not REQUEST_ID.fullmatch(request_id):
             raise NotFound(f"there is no request {request_id!r}.", request_id)
         if self.store.local_reads:
-            # Measured (benchmarks/service.py, 1,000 robots, GET at 200/s):
-            # the two thread hand-offs, not the 0.5 ms read, made the slow tail.
+            # The two thread hand-offs, not the read, made the slow tail
+            # (benchmarks/results/design-notes.md, get-on-loop).
             try:
                 record = self.store.get(request_id, application)
             except StoreUnavailable:
@@ -458,9 +458,8 @@ def most_workers(kept: int, cores: int | None = None) -> int:
 
     Up to twice as many, but not past the machine's cores (unless ``kept``
     already is): more selections at once than cores only share them, each
-    slower, and more of them pick the same robot (measured on 2 cores at 200
-    requests/s offered: with 4 at once, 182 to 197/s accepted and p99 384 to
-    452 ms in four runs; with 2, 197 to 200/s and p99 202 to 312 ms in four).
+    slower, and more of them pick the same robot
+    (benchmarks/results/design-notes.md, selection-workers).
     """
     cores = cores if cores is not None else (os.cpu_count() or 1)
     return max(kept, min(2 * kept, cores))

@@ -27,10 +27,9 @@ from robocloud.planning.plan import Method, Plan
 from robocloud.planning.problem import Problem
 from robocloud.planning.schedule import Schedule
 
-# Up to this many (tasks squared times robots), the exact model. Measured in
-# benchmarks/missions.py: 8 tasks and 3 robots (192) are proven in under a
-# second; at 15 and 5 (1,125) CP-SAT alone needs 11 and 55 s to prove its
-# plans, and on larger missions within 10 s the search is what improves.
+# Up to this many (tasks squared times robots), the exact model: it proves
+# small missions at once, and beyond it the search is what improves a plan
+# within the time limit (benchmarks/results/design-notes.md, exact-size).
 EXACT_SIZE = 600
 # Up to this size the anytime method gives its second half to the exact model,
 # warm-started from the search's plan (15 tasks and 5 robots, 1,125: 634 and 590

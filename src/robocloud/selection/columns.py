@@ -145,9 +145,9 @@ class FleetColumns:
     def rows_of(self, ids: Iterable[str]) -> IntArray:
         """The rows of those of ``ids`` that are in the fleet.
 
-        A selection leaves out every robot reserved, hundreds under load: for
-        300 of 1,000 robots, 17 us by ``row_of`` against 99 us by a binary
-        search of each in ``ids`` (measured).
+        A selection leaves out every robot reserved, hundreds under load: a
+        dictionary beats a binary search of each in ``ids``
+        (benchmarks/results/design-notes.md, row-of).
         """
         row_of = self.row_of
         return np.array([row_of[r] for r in ids if r in row_of], dtype=np.int64)

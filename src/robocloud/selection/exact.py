@@ -236,8 +236,8 @@ def one_robot_front(problem: CoalitionProblem, keep: IntArray) -> list[Coalition
     Every Pareto-optimal coalition is then one robot: a second one only adds
     time, cost and one to N. So the front is the (T, C) skyline of the single
     robots that bring the capability within max_cost, which is what the
-    sweep would find, without its covering machinery (about 2 ms for 130
-    candidates, measured; this takes a few hundredths of that).
+    sweep would find, without its covering machinery (benchmarks/results/design-notes.md,
+    skyline).
 
     The skyline's last step is the front's own rule, one robot at a time.
     When more than ``SKYLINE_MAX`` robots are left for it (robots alike in

@@ -35,8 +35,7 @@ def _close(a: float, b: FloatArray) -> BoolArray:
 
 
 # Up to this many coalitions, plain Python is faster than numpy's per-call
-# cost (measured: pareto_front of 5 coalitions took 540 us with arrays, 92 us
-# without).
+# cost (benchmarks/results/design-notes.md, small-fronts).
 SMALL = 24
 
 

@@ -53,9 +53,8 @@ class Churn:
     ``recharge_below``, without churn: an idle robot whose battery is below
     that many percent goes charging (at ``charge_rate``) until full, as a
     robot that docks itself would, and does nothing else on its own. Without
-    it a fleet under a long stream of tasks runs dry (measured: 116 grabbers
-    doing thousands of tasks in a throughput benchmark refused more and more
-    of them for a battery of a few percent).
+    it a fleet under a long stream of tasks runs dry (benchmarks/results/design-notes.md,
+    recharge).
     """
 
     def __init__(

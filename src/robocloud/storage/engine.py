@@ -194,8 +194,8 @@ class Database:
         """SQLite's write connection (the write lock held): kept from write to write.
 
         Checking a connection out of the pool and back in (with its reset)
-        cost about a sixth of a lone state change (measured: 0.38 to 0.41 ms of
-        CPU per write with it, 0.32 to 0.37 ms without). A write that fails on the database's
+        cost about a sixth of a lone state change (benchmarks/results/design-notes.md,
+        kept-writer). A write that fails on the database's
         side drops the kept connection; the next write opens another.
         """
         if self._kept_writer is None:

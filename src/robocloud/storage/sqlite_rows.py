@@ -2,8 +2,7 @@
 
 ``SqlRequestStore`` speaks SQLAlchemy Core, which spends about 0.1 ms of CPU
 on each statement it runs, three to four times what sqlite3 itself takes
-(measured on this 2-core machine: a state change, four statements and its
-transaction, 0.45 ms through Core against 0.13 ms on the cursor). Every request
+(benchmarks/results/design-notes.md, sqlite-cursor). Every request
 runs the same few statements five or six times in its life: its row and its
 history, a state change, a new request, its robots' holds. On SQLite these
 run here, on the cursor of the connection SQLAlchemy has in the transaction

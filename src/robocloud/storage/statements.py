@@ -27,8 +27,7 @@ from robocloud.storage.records import RequestRecord, StateChange
 from robocloud.storage.schema import request_history, requests, reservations
 
 # Built once: building and keying a Core statement cost more than running it
-# (measured: 5.3 ms per transition with six statements built per call; see
-# ``SqlRequests.change``).
+# (benchmarks/results/design-notes.md, statements-once; ``SqlRequests.change``).
 ROW_FOR_UPDATE: Select[Any] = (
     select(requests).where(requests.c.id == bindparam("rid")).with_for_update()
 )

@@ -54,7 +54,7 @@ def zenoh_pair(
     b = ZenohOverlay(b_session, "cloud-b", home_b)
     a = ZenohOverlay(a_session, "cloud-a", home_a, timeout=timeout)
     try:
-        assert wait_for_liveliness(a_session, cloud_token("cloud-b"), 5.0)
+        assert wait_for_liveliness(a_session, cloud_token("cloud-b", str(b_session.zid())), 5.0)
         wait_for_commands(a, "cloud-b")
         yield a, b
     finally:

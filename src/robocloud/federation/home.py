@@ -214,7 +214,7 @@ class Home:
         """
         # The scatter-gather reaches this cloud's own desk too: its robots are
         # already in the view, so they need not travel.
-        if query.origin == self.cloud or not self._trusts(query.origin):
+        if query.origin == self.cloud or not self.trusts(query.origin):
             return self._idle_reply([])
         held = self.store.reservations()
         wanted = set(query.capabilities)
@@ -391,7 +391,7 @@ class Home:
 
     def loans(self, origin: str, query: LoanQuery) -> LoanReply:
         """What the origin asks once it is back: the loans this home ended without it."""
-        if not self._trusts(origin):
+        if not self.trusts(origin):
             return LoanReply(cloud=self.cloud)
         for loan in self.store.told(origin, query.told):
             log.info(
@@ -414,13 +414,14 @@ class Home:
 
     # -- checks ------------------------------------------------------------------------
 
-    def _trusts(self, origin: str) -> bool:
+    def trusts(self, origin: str) -> bool:
+        """Whether this home lends to, and borrows from, ``origin`` (itself included)."""
         return self.trusted is None or origin in self.trusted or origin == self.cloud
 
     def _check(self, origin: str, what: str, robots: Iterable[str]) -> str | None:
         if not origin:
             return "a command must come on a key that names its sender."
-        if not self._trusts(origin):
+        if not self.trusts(origin):
             error = f"{self.cloud} does not trust {origin}."
             log.warning("refused a %s from %s: %s", what, origin, error)
             return error

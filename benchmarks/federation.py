@@ -179,8 +179,8 @@ def _release(home: Any, request_id: str) -> None:
 def _home_with_loans(size: int) -> Iterator[Any]:
     """cloud-b's Home on a SQLite file, with ``size`` robots each lent to a request of cloud-a."""
     from robocloud.domain import Robot
-    from robocloud.fleet import MemoryRobotLink
     from robocloud.federation.home import Home
+    from robocloud.fleet import MemoryRobotLink
     from robocloud.storage import SqlRequestStore
 
     robots = [

@@ -11,12 +11,12 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime, timedelta
 
 from robocloud.domain import Robot
+from robocloud.federation.home import Home
 from robocloud.federation.memory import MemoryNetwork, MemoryOverlay
 from robocloud.federation.messages import LoanQuery
 from robocloud.federation.overlay import Overlay, Unreachable, ZenohOverlay
 from robocloud.federation.view import FederationView
 from robocloud.fleet import MemoryRobotLink
-from robocloud.federation.home import Home
 from robocloud.storage import MemoryRequestStore, RequestStore
 
 

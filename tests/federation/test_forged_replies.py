@@ -161,7 +161,9 @@ def test_a_robot_cannot_fabricate_a_cloud(clouds: Clouds, caplog: pytest.LogCapt
     info = '{"cloud": "cloud-zzz", "robots": 3, "idle": 3}'
     answers = [
         forge(clouds.forger, keys.question("cloud-zzz", "info"), info),
-        forge(clouds.forger, keys.question("cloud-zzz", "idle"), '{"cloud":"cloud-zzz","robots":[]}'),
+        forge(
+            clouds.forger, keys.question("cloud-zzz", "idle"), '{"cloud":"cloud-zzz","robots":[]}'
+        ),
     ]
     until(lambda: "cloud-zzz is present" in caplog.text, "cloud-a to hear of cloud-zzz")
     assert "cloud-a does not trust it: it is neither asked nor answered" in caplog.text

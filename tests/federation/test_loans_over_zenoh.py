@@ -16,11 +16,11 @@ import pytest
 from federation_testing import zenoh_pair
 
 from robocloud.domain import Robot
+from robocloud.federation.home import Home
 from robocloud.federation.messages import Dispatch, Release, Reservation
 from robocloud.federation.overlay import ZenohOverlay
 from robocloud.fleet import MemoryRobotLink
 from robocloud.fleet.messages import Assign
-from robocloud.federation.home import Home
 from robocloud.storage import MemoryRequestStore, SqlRequestStore
 
 pytestmark = pytest.mark.slow

@@ -176,9 +176,9 @@ def test_a_gateway_needs_a_key_chunk_and_a_sane_batch_size() -> None:
 def test_another_cloud_follows_a_borrowed_robot_behind_a_gateway(
     cloud: tuple[zenoh.Session, zenoh.Session, ZenohRobotLink, FleetSimulator],
 ) -> None:
+    from robocloud.federation.home import Home
     from robocloud.federation.overlay import ZenohOverlay
     from robocloud.fleet import MemoryRobotLink
-    from robocloud.federation.home import Home
     from robocloud.storage import MemoryRequestStore
 
     router, _, _, simulator = cloud

@@ -5,7 +5,7 @@
     Overlay                 the seam the IaaS uses (a Protocol)
     ├── ZenohOverlay        the real one, on the IaaS's Zenoh router session
     └── MemoryOverlay       in memory, for fast tests (robocloud.federation.memory)
-    HomeDesk                what a cloud answers about its own robots (robocloud.federation.home.Home)
+    HomeDesk                what a cloud answers of its robots (robocloud.federation.home.Home)
 
 The IaaS gives the overlay a ``HomeDesk``: what its own cloud answers when
 other clouds ask (its idle robots, loans, dispatch to its robots). A command
@@ -37,7 +37,6 @@ import zenoh
 
 from robocloud.errors import RoboCloudError
 from robocloud.federation import keys
-from robocloud.federation.presence import Presence
 from robocloud.federation.messages import (
     MAX_MESSAGE_BYTES,
     CloudInfo,
@@ -55,6 +54,7 @@ from robocloud.federation.messages import (
     StatusReply,
     decode_idle_reply,
 )
+from robocloud.federation.presence import Presence
 from robocloud.fleet import keys as robot_keys
 from robocloud.fleet.ingest import StateReader
 from robocloud.fleet.link import LatestStates, StateListener
@@ -84,6 +84,7 @@ class HomeDesk(Protocol):
     def idle_robots(self, query: IdleQuery) -> bytes:
         """The ``IdleReply``'s JSON (written by the home: it is on every selection's path)."""
         ...
+
     def fleet(self) -> FleetReply: ...
     def status(self, query: StatusQuery) -> StatusReply: ...
     def reserve(self, origin: str, reservation: Reservation) -> ReserveReply: ...
@@ -252,8 +253,9 @@ class ZenohOverlay(HomeCommands):
                 keys.question(cloud, name)
                 if name in keys.QUESTIONS
                 else keys.command(cloud, "*", name),
-                self._handler(handlers[name], self._asking if name in keys.QUESTIONS
-                              else self._pool),
+                self._handler(
+                    handlers[name], self._asking if name in keys.QUESTIONS else self._pool, name
+                ),
             )
             for name in (*keys.QUESTIONS, *keys.COMMANDS)
         ]
@@ -424,15 +426,19 @@ class ZenohOverlay(HomeCommands):
     # -- internals ------------------------------------------------------------
 
     def _handler(
-        self, handler: Handler, threads: ThreadPoolExecutor
+        self, handler: Handler, threads: ThreadPoolExecutor, name: str
     ) -> Callable[[zenoh.Query], None]:
+        # A question asked of every cloud (robocloud/*/idle) is answered on this
+        # cloud's own key: the routers let a cloud reply on its own keys only.
+        own = keys.question(self.cloud, name) if name in keys.QUESTIONS else None
+
         def on_query(query: zenoh.Query) -> None:
             # Keep Zenoh's thread free: the answer may send queries itself.
-            threads.submit(self._answer, query, handler)
+            threads.submit(self._answer, query, handler, own)
 
         return on_query
 
-    def _answer(self, query: zenoh.Query, handler: Handler) -> None:
+    def _answer(self, query: zenoh.Query, handler: Handler, own: str | None) -> None:
         with query:
             key = str(query.key_expr)
             # A command's sender is the key's: the router let only that cloud send on it.
@@ -447,7 +453,7 @@ class ZenohOverlay(HomeCommands):
                 logger.exception("answering %s failed", key)
                 query.reply_err("internal error")
                 return
-            query.reply(query.key_expr, reply, encoding=zenoh.Encoding.APPLICATION_JSON)
+            query.reply(own or query.key_expr, reply, encoding=zenoh.Encoding.APPLICATION_JSON)
 
     def _scatter(
         self, name: str, message: pydantic.BaseModel | None, timeout: float | None = None

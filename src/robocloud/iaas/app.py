@@ -41,6 +41,7 @@ from robocloud.errors import (
     Unavailable,
     describe_validation_errors,
 )
+from robocloud.federation.home import Home, reconcile_period
 from robocloud.federation.messages import CloudInfo
 from robocloud.federation.overlay import ZenohOverlay
 from robocloud.federation.view import FederationView
@@ -48,7 +49,6 @@ from robocloud.fleet.link import RobotLink
 from robocloud.iaas.actor import Selector
 from robocloud.iaas.config import Settings
 from robocloud.iaas.docs_ui import install_docs
-from robocloud.federation.home import Home, reconcile_period
 from robocloud.iaas.metrics import IaasMetrics
 from robocloud.iaas.models import (
     ErrorBody,

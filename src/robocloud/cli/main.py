@@ -49,6 +49,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from robocloud import logs
 from robocloud.cli.iaas_command import add_iaas_arguments, iaas_command
 from robocloud.cli.select_input import (  # noqa: F401 (parse_select_input: re-exported)
     check_unique_ids,
@@ -77,6 +78,7 @@ def exit_code(error: RoboCloudError) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
+    logs.install()  # every log line of every command escapes control characters
     args = build_parser().parse_args(argv)
     command: Command = args.command
     # getattr: a subcommand added later may have neither.

@@ -59,6 +59,7 @@ from robocloud.fleet import keys as robot_keys
 from robocloud.fleet.ingest import StateReader
 from robocloud.fleet.link import LatestStates, StateListener
 from robocloud.fleet.messages import Ack, State
+from robocloud.fleet.state_errors import clock_refusal
 
 logger = logging.getLogger(__name__)
 
@@ -528,7 +529,9 @@ class ZenohOverlay(HomeCommands):
             return
         # A state counts only on its own robot's key (a state for a-1 sent on
         # b-2's key would otherwise pass for a-1's).
-        if robot_keys.robot_of(str(sample.key_expr)) == state.id:
+        if robot_keys.robot_of(str(sample.key_expr)) == state.id and not clock_refusal(
+            state, time.time()
+        ):
             self._watched.accept(state)
 
     def _on_batch(self, cloud: str, sample: zenoh.Sample) -> None:
@@ -540,7 +543,10 @@ class ZenohOverlay(HomeCommands):
         if not wanted:
             return
         states, _ = self._reader.read_batch(sample.payload.to_bytes(), only=wanted)
-        self._watched.accept_many(s for s in states if s.cloud == cloud)
+        now = time.time()
+        self._watched.accept_many(
+            s for s in states if s.cloud == cloud and not clock_refusal(s, now)
+        )
 
 
 def _replier(reply: zenoh.Reply) -> str | None:

@@ -142,8 +142,12 @@ def clouds(
     stores: dict[str, RequestStore] | None = None,
     lease_max: float = 30.0,
     origin_deadline: float = 60.0,
+    lend_share: float = 1.0,
 ) -> tuple[MemoryNetwork, dict[str, Cloud]]:
-    """One cloud per name, each with ``robots`` robots (``a-0``, ``a-1`` ... for cloud-a)."""
+    """One cloud per name, each with ``robots`` robots (``a-0``, ``a-1`` ... for cloud-a).
+
+    ``lend_share``: of a cloud's robots one other may hold (all, unless a test says).
+    """
     network = MemoryNetwork()
     time = time or FakeTime()
     out = {}
@@ -159,6 +163,7 @@ def clouds(
             (trust or {}).get(name),
             lease_max=lease_max,
             origin_deadline=origin_deadline,
+            lend_share=lend_share,
             clock=time.utc,
             monotonic=time.mono,
         )

@@ -43,6 +43,16 @@ from typing import Protocol
 
 from robocloud.domain import Robot, is_final
 from robocloud.errors import RoboCloudError, Unavailable
+from robocloud.federation.lending import (
+    LEND_MIN_BATTERY,
+    LEND_SHARE,
+    RESERVE_BURST,
+    RESERVE_RATE,
+    ReserveRate,
+    Undispatched,
+    over_share,
+    unfit,
+)
 from robocloud.federation.messages import (
     MAX_ITEMS,
     CloudInfo,
@@ -151,6 +161,8 @@ class Home:
         *,
         lease_max: float = LEASE_MAX,
         origin_deadline: float = ORIGIN_DEADLINE,
+        lend_share: float = LEND_SHARE,
+        reserve_rate: float = RESERVE_RATE,
         clock: Callable[[], datetime] = utc_now,
         monotonic: Callable[[], float] = time.monotonic,
     ) -> None:
@@ -161,6 +173,9 @@ class Home:
         self.api = api
         self.lease_max = lease_max
         self.origin_deadline = origin_deadline
+        self.lend_share = lend_share
+        self.reserve_rate = ReserveRate(monotonic, reserve_rate, RESERVE_BURST)
+        self._undispatched = Undispatched(cloud, lease_max, monotonic)
         self.origin: OriginStatus | None = None
         self.overlay: Overlay | None = None
         # The homes this cloud borrowed from (robocloud.federation.view.FederationView.lenders).
@@ -170,6 +185,7 @@ class Home:
         self._started = monotonic()
         self._lock = threading.Lock()
         self._lent: dict[str, _Lent] = {}
+        self._bound_refusals: dict[str, int] = {}  # origin -> reserves refused by a bound
         self._away_since: dict[str, float] = {}  # origin -> when it first did not answer
         self._worked_at: dict[str, float] = {}  # robot -> when last seen working for its loan
         self._dispatched: set[tuple[str, str]] = set()  # (robot, request): accepted its dispatch
@@ -288,9 +304,10 @@ class Home:
         refusal = self._check(origin, "reserve", reservation.robots)
         if refusal is None:
             refusal = _stray_commands(reservation)
+        if refusal is None:
+            refusal, lease = self._bounds(origin, reservation)
         if refusal:
             return ReserveReply(taken=list(reservation.robots), error=refusal)
-        lease = min(reservation.lease_seconds or self.lease_max, self.lease_max)
         taken = self.store.lend(origin, reservation.request_id, reservation.robots, lease)
         if taken:
             return ReserveReply(taken=taken)
@@ -364,6 +381,7 @@ class Home:
             return Ack.refuse(robot, request_id, error)
         ack = self.link.assign(robot, command)
         if ack.ok:
+            self._undispatched.dispatched(origin, robot)
             # Now the origin may confirm the lease (firm). Kept in memory, not
             # written: the origin confirms at once, and the robot's own state
             # tells the same after a restart of this IaaS.
@@ -413,6 +431,47 @@ class Home:
         return LoanReply(cloud=self.cloud, held=len(self.store.loans(origin)), ended=ended)
 
     # -- checks ------------------------------------------------------------------------
+
+    def _bounds(self, origin: str, reservation: Reservation) -> tuple[str | None, float]:
+        """(why the reservation exceeds a lending bound, or None; the lease to grant).
+
+        The bounds of ``robocloud.federation.lending``: the rate, the robots'
+        fitness, the origin's share, and ``lease_max`` from the first reservation
+        (``Undispatched``: renewals, other request ids and releases in between
+        included).
+        """
+        request_id, robots = reservation.request_id, reservation.robots
+        refusal = self.reserve_rate.take(origin)
+        asked = min(reservation.lease_seconds or self.lease_max, self.lease_max)
+        lease = asked
+        if refusal is None:
+            held = self.store.loans(origin)
+            mine = {loan.robot for loan in held if loan.request_id == request_id}
+            # Robots another holds are left to the store, which answers them taken.
+            new = [r for r in robots if r not in mine and self._holder(r) is None]
+            fleet = self.link.robots()
+            refusal = unfit(new, {r.id: r for r in fleet}, LEND_MIN_BATTERY) or over_share(
+                origin, len(held), len(new), len(fleet), self.lend_share, self.cloud
+            )
+            if refusal is None:
+                ours = [r for r in robots if r in mine or r in new]
+                lease, refusal = self._undispatched.grant(origin, ours, asked)
+        if refusal is not None:
+            self._refused_bound(origin, request_id, refusal)
+        return refusal, lease
+
+    def _refused_bound(self, origin: str, request_id: str, refusal: str) -> None:
+        """Log a reservation refused by a bound: the first of each origin, then every 100th."""
+        with self._lock:
+            count = self._bound_refusals[origin] = self._bound_refusals.get(origin, 0) + 1
+        if count == 1 or count % 100 == 0:
+            log.warning(
+                "refused a reserve from %s for request %s (%d so far): %s",
+                origin,
+                request_id,
+                count,
+                refusal,
+            )
 
     def trusts(self, origin: str) -> bool:
         """Whether this home lends to, and borrows from, ``origin`` (itself included)."""

@@ -31,6 +31,7 @@ from robocloud.federation.messages import (
 )
 from robocloud.federation.overlay import Unreachable, ZenohOverlay
 from robocloud.fleet import open_client, open_router
+from robocloud.iaas.metrics import IaasMetrics
 
 
 @dataclass
@@ -108,6 +109,10 @@ def test_a_forged_status_answer_does_not_end_loans(
         assert reply.requests[0].known is True  # cloud-b's own answer, every time
     # Counted when they came before cloud-b's (the asker stops at the real one).
     assert clouds.a.presence.refusals()[("status", "forged")] >= 1
+    metrics = IaasMetrics()
+    metrics.observe_refusals(clouds.a.presence.refusals, dict)
+    scrape = metrics.exposition(None)[0].decode()
+    assert 'robocloud_overlay_replies_dropped_total{asked="status",why="forged"}' in scrape
     assert "dropped a forged reply to the status: it claims to be cloud-b's" in caplog.text
     forged.undeclare()  # type: ignore[no-untyped-call]
 

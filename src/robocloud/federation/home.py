@@ -460,6 +460,11 @@ class Home:
             self._refused_bound(origin, request_id, refusal)
         return refusal, lease
 
+    def bound_refusals(self) -> dict[str, int]:
+        """Reservations refused by a lending bound, by origin (a copy: the metric)."""
+        with self._lock:
+            return dict(self._bound_refusals)
+
     def _refused_bound(self, origin: str, request_id: str, refusal: str) -> None:
         """Log a reservation refused by a bound: the first of each origin, then every 100th."""
         with self._lock:

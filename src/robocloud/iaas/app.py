@@ -164,6 +164,7 @@ def create_app(
                 )
                 stack.callback(overlay.close)
                 home.overlay = overlay
+                metrics.observe_refusals(overlay.presence.refusals, home.bound_refusals)
             view = FederationView(
                 settings.cloud, the_store, the_link, overlay, settings.gather_timeout
             )

@@ -155,6 +155,7 @@ def create_app(
                 settings.trusted,
                 api=f"http://{settings.host}:{settings.port}",
                 lease_max=settings.lease_max,
+                lend_share=settings.lend_share,
                 origin_deadline=settings.origin_deadline,
             )
             overlay = None

@@ -19,7 +19,16 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks import federation, fleet, select_command, selection, service, soak, throughput
+from benchmarks import (
+    federation,
+    fleet,
+    memory,
+    select_command,
+    selection,
+    service,
+    soak,
+    throughput,
+)
 from benchmarks.machine import reference_ms, steal_ticks, stolen
 from benchmarks.report import SectionReport, render_markdown, render_text, write_csv
 
@@ -40,6 +49,7 @@ SECTIONS: list[Section] = [
     Section("federation", federation.run),
     Section("throughput", throughput.run),
     Section("fleet", fleet.run),
+    Section("memory", memory.run),
 ]
 
 

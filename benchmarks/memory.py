@@ -134,7 +134,7 @@ def measure(sizes: Sequence[int], workdir: Path) -> SectionReport:
     notes = [
         "Ordinary robots: the simulator's (a handful of capabilities, states of about "
         "500 bytes). A state is at most 64 KiB and a name 128 characters; a link follows "
-        "at most 100,000 robots (--max-fleet), so the worst case is bounded, not measured.",
+        "at most 100,000 robots (Settings.max_fleet), so the worst case is bounded, not measured.",
         f"RSS with robots: {SETTLE:g} s after every robot was heard from.",
     ]
     return SectionReport(name="memory", title="IaaS memory per robot", rows=rows,

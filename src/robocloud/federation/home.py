@@ -311,6 +311,7 @@ class Home:
         taken = self.store.lend(origin, reservation.request_id, reservation.robots, lease)
         if taken:
             return ReserveReply(taken=taken)
+        self._undispatched.record(origin, reservation.robots, lease)
         self._lent_now(origin, reservation.request_id, reservation.robots, lease)
         commands = reservation.dispatch
         if len(commands) > 1:  # the robots answer at once, not one after the other

@@ -120,29 +120,33 @@ class Undispatched:
         self._pruned = clock()
 
     def grant(self, origin: str, robots: Sequence[str], asked: float) -> tuple[float, str | None]:
-        """(the lease to grant for ``robots`` now, or why none is), recording the grant."""
+        """(the lease to grant for ``robots`` now, or why none is); ``record`` it once lent."""
         now = self._clock()
         with self._lock:
             if now - self._pruned > self.lease_max:
                 self._prune(now)
-            began = now
+            began = min((self._began(origin, robot, now) for robot in robots), default=now)
+        lease = min(asked, self.lease_max - (now - began))
+        if lease <= 0:
+            return 0.0, (
+                f"{origin} has held {', '.join(robots[:5])} leased and not dispatched "
+                f"for {now - began:.0f} s: {self.home} leases at most {self.lease_max:g} s "
+                f"until the dispatch, renewals included; again {self.lease_max:g} s after "
+                "the lease ends."
+            )
+        return lease, None
+
+    def record(self, origin: str, robots: Sequence[str], lease: float) -> None:
+        """The robots were lent to ``origin`` for ``lease`` seconds from now."""
+        now = self._clock()
+        with self._lock:
             for robot in robots:
-                run = self._runs.get((origin, robot))
-                if run is not None and now - run[1] <= self.lease_max:
-                    began = min(began, run[0])
-            lease = min(asked, self.lease_max - (now - began))
-            if lease <= 0:
-                return 0.0, (
-                    f"{origin} has held {', '.join(robots[:5])} leased and not dispatched "
-                    f"for {now - began:.0f} s: {self.home} leases at most {self.lease_max:g} s "
-                    f"until the dispatch, renewals included; again {self.lease_max:g} s after "
-                    "the lease ends."
-                )
-            for robot in robots:
-                run = self._runs.get((origin, robot))
-                start = run[0] if run is not None and now - run[1] <= self.lease_max else now
-                self._runs[(origin, robot)] = (start, now + lease)
-            return lease, None
+                self._runs[(origin, robot)] = (self._began(origin, robot, now), now + lease)
+
+    def _began(self, origin: str, robot: str, now: float) -> float:
+        """When the run of ``robot``'s leases to ``origin`` began (now: none goes on)."""
+        run = self._runs.get((origin, robot))
+        return run[0] if run is not None and now - run[1] <= self.lease_max else now
 
     def dispatched(self, origin: str, robot: str) -> None:
         """The home forwarded the robot's dispatch for ``origin``: its run is over."""

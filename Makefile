@@ -21,9 +21,12 @@ $(STAMP): pyproject.toml requirements.lock
 	$(BIN)/python -m pip install --quiet --disable-pip-version-check --no-deps -e .
 	touch $(STAMP)
 
+# `make run DEMO_ARGS=--nxt` adds the thesis's NXT robots (stand-in bricks) to cloud-a.
 run: $(STAMP)
-	$(BIN)/python -m robocloud.cli.demo
+	$(BIN)/python -m robocloud.cli.demo $(DEMO_ARGS)
 
+# The tests use the PostgreSQL and MQTT servers already running, else start their own
+# (tests/session_servers.py); chromium is installed when missing, where that can be done.
 test: $(STAMP)
 	sh tests/wildfire/ensure_chromium.sh
 	$(BIN)/python -m pytest -q -n 2 --dist loadfile

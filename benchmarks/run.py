@@ -23,6 +23,7 @@ from benchmarks import (
     federation,
     fleet,
     memory,
+    nxt,
     select_command,
     selection,
     service,
@@ -49,6 +50,7 @@ SECTIONS: list[Section] = [
     Section("federation", federation.run),
     Section("throughput", throughput.run),
     Section("fleet", fleet.run),
+    Section("nxt", nxt.run),
     Section("memory", memory.run),
 ]
 

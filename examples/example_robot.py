@@ -70,10 +70,13 @@ class Robot:
         names = command.get("capabilities", [])
         if not names or any(name not in CAPABILITIES for name in names):
             return False, f"robot {self.id} has only the capabilities {', '.join(CAPABILITIES)}."
+        target = command.get("location")
+        if not (isinstance(target, list) and len(target) == 2
+                and all(isinstance(v, (int, float)) for v in target)):  # fmt: skip
+            return False, f"robot {self.id} needs a location [x, y] to go to."
         times = [CAPABILITIES[name]["time"] for name in names]
-        target = tuple(command["location"])
-        self.job = {"start": time.monotonic(), "from": self.position, "to": target,
-                    "travel": math.dist(self.position, target) / SPEED,
+        self.job = {"start": time.monotonic(), "from": self.position, "to": tuple(target),
+                    "travel": math.dist(self.position, tuple(target)) / SPEED,
                     "work": sum(times) if command.get("execution") == "sequential" else max(times)}
         self.task = {"request_id": request, "phase": "travel", "progress": 0.0,
                      "capabilities": names}  # fmt: skip

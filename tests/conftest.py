@@ -11,13 +11,14 @@ needs none of its own (``make check`` leaves out the last three):
 
 PostgreSQL tests run in a database made for this session
 (``robocloud_test_<hex>``, dropped at the end) on the server of
-``ROBOCLOUD_TEST_POSTGRES_URL`` (default: postgres on 127.0.0.1:5432, database
-``test``). If that server is down they fail, never skip: CI must run them.
+``ROBOCLOUD_TEST_POSTGRES_URL``, else the one on 127.0.0.1:5432, else one the
+run starts itself; the VDA 5050 tests share an MQTT broker found or started
+the same way (``session_servers.py`` says how). With no server to be had they
+fail, never skip: CI must run them.
 """
 
 from __future__ import annotations
 
-import os
 import secrets
 from collections.abc import Iterator
 from pathlib import Path
@@ -27,10 +28,7 @@ from sqlalchemy import Engine, create_engine, text
 from sqlalchemy.exc import DBAPIError
 
 from robocloud.storage.sql import database_url
-
-POSTGRES_ADMIN_URL = os.environ.get(
-    "ROBOCLOUD_TEST_POSTGRES_URL", "postgresql+psycopg://postgres@127.0.0.1:5432/test"
-)
+from session_servers import ServerUnavailable, close_run, mqtt_broker, open_run, postgres_admin_url
 
 TESTS = Path(__file__).parent
 SYSTEM_FOLDER = "system"
@@ -53,6 +51,15 @@ def markers_of(item: pytest.Item) -> set[str]:
     return names
 
 
+def pytest_configure(config: pytest.Config) -> None:
+    # Before xdist starts its workers, so that they share the servers the run starts.
+    open_run()
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    close_run()
+
+
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     for item in items:
         for name in sorted(markers_of(item)):
@@ -61,8 +68,12 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
 
 @pytest.fixture(scope="session")
 def postgres_admin() -> Iterator[Engine]:
+    try:
+        admin_url = postgres_admin_url()
+    except ServerUnavailable as error:
+        pytest.fail(str(error), pytrace=False)
     engine = create_engine(
-        database_url(POSTGRES_ADMIN_URL),
+        database_url(admin_url),
         isolation_level="AUTOCOMMIT",
         connect_args={"connect_timeout": 5},
     )
@@ -73,9 +84,8 @@ def postgres_admin() -> Iterator[Engine]:
         engine.dispose()
         cause = str(error.orig).strip().splitlines()[0]
         pytest.fail(
-            f"PostgreSQL is not reachable at {POSTGRES_ADMIN_URL} ({cause}). The storage "
-            "tests must run against it: start it (pg_ctlcluster --skip-systemctl-redirect "
-            "15 main start) or point ROBOCLOUD_TEST_POSTGRES_URL at a server.",
+            f"PostgreSQL is not usable at {admin_url} ({cause}): the storage tests must run "
+            "against it; fix that server, or point ROBOCLOUD_TEST_POSTGRES_URL at another.",
             pytrace=False,
         )
     yield engine
@@ -93,3 +103,12 @@ def postgres_url(postgres_admin: Engine) -> Iterator[str]:
     finally:
         with postgres_admin.connect() as conn:
             conn.execute(text(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)'))
+
+
+@pytest.fixture(scope="session")
+def mosquitto() -> tuple[str, int]:
+    """The MQTT broker the VDA 5050 tests share (Mosquitto, or amqtt), each on topics of its own."""
+    try:
+        return mqtt_broker()
+    except ServerUnavailable as error:
+        pytest.fail(str(error), pytrace=False)

@@ -44,15 +44,11 @@ def test_a_forged_line_stays_on_its_own_line(
 
 
 def test_every_command_installs_it() -> None:
-    """The command line's main installs the escape before any command runs."""
+    """Every command runs through robocloud.cli.exits.run, which installs the escape first."""
     script = (
-        "import logging, sys\n"
-        "from robocloud.cli import main\n"
-        "sys.argv = ['robocloud', 'version']\n"
-        "try:\n"
-        "    main.main(['--help'])\n"
-        "except SystemExit:\n"
-        "    pass\n"
+        "import argparse, logging\n"
+        "from robocloud.cli.exits import run\n"
+        "run(lambda args: 0, argparse.Namespace())\n"
         "logging.basicConfig(format='%(message)s')\n"
         f"logging.getLogger('x').warning('%s', {FORGED!r})\n"
     )

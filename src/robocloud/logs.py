@@ -10,9 +10,9 @@ Unicode line and paragraph separators and the bidirectional overrides
 become ``\\n``, ``\\x1b``, ``\\u202e``. A traceback (``exc_info``) is left as
 it is: its lines are Python's.
 
-``robocloud.cli.main.main`` installs it before any command runs, so every
-command's log (the IaaS, the simulator, the gateways, the wildfire server)
-is covered wherever it configures its handlers.
+``robocloud.cli.exits.run``, through which every command runs, installs it
+first, so every command's log (the IaaS, the simulator, the gateways, the
+wildfire server) is covered wherever it configures its handlers.
 """
 
 from __future__ import annotations

@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 
 from robocloud.cli.main import main
+from robocloud.conformance import RULES
 from robocloud.fleet import open_router
 
 
@@ -60,8 +61,8 @@ def test_robot_check_fails_with_a_sentence_when_no_robot_comes(
                  "--join-timeout", "0.5"])  # fmt: skip
     out = capsys.readouterr().out
     assert code == 1
-    assert "join             FAIL  no state on robocloud/cloud-a/robots/nobody/state" in out
-    assert out.strip().endswith("0 passed, 14 failed")
+    assert "join                 FAIL  no state on robocloud/cloud-a/robots/nobody/state" in out
+    assert out.strip().endswith(f"0 passed, {len(RULES)} failed")
 
 
 GATEWAY = ["vda5050", "--cloud", "cloud-a", "--connect", "tcp/127.0.0.1:17998"]
@@ -77,6 +78,9 @@ GATEWAY = ["vda5050", "--cloud", "cloud-a", "--connect", "tcp/127.0.0.1:17998"]
         (["--capabilities", "/no/such.json"], "/no/such.json: no such file."),
         (["--connect-timeout", "-1"], "--connect-timeout must be 0 to 3600 s"),
         (["--gateway-name", "a/b"], "--gateway-name 'a/b' cannot be used in a Zenoh key"),
+        (["--accept-within", "0"], "--accept-within must be more than 0 and at most 600 s"),
+        (["--reconcile-grace", "nan"], "--reconcile-grace must be more than 0 and at most 600"),
+        (["--state-interval", "31"], "--state-interval must be more than 0 and at most 30 s"),
     ],
 )
 def test_vda5050_refuses_wrong_arguments(

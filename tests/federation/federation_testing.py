@@ -15,6 +15,7 @@ from robocloud.federation.home import Home
 from robocloud.federation.memory import MemoryNetwork, MemoryOverlay
 from robocloud.federation.messages import LoanQuery
 from robocloud.federation.overlay import Overlay, Unreachable, ZenohOverlay
+from robocloud.federation.reconcile import LoanReconciler
 from robocloud.federation.view import FederationView
 from robocloud.fleet import MemoryRobotLink
 from robocloud.storage import MemoryRequestStore, RequestStore
@@ -96,7 +97,7 @@ class FakeTime:
 
 @dataclass
 class Origin:
-    """What a cloud's request service tells its Home (an ``OriginStatus``)."""
+    """What a cloud's request service says of its requests (its coalitions, ended loans)."""
 
     coalitions: dict[str, list[str]] = field(default_factory=dict)
     ended: list[tuple[str, str, str, str]] = field(default_factory=list)
@@ -117,6 +118,7 @@ class Cloud:
     overlay: MemoryOverlay
     view: FederationView
     origin: Origin
+    reconciler: LoanReconciler
 
 
 def robot(cloud: str, i: int, x: float = 10.0) -> Robot:
@@ -156,6 +158,7 @@ def clouds(
         link = MemoryRobotLink(
             name, [robot(name, i, 10.0 * (i + 1)) for i in range(robots)], clock=time.mono
         )
+        origin = Origin()
         home = Home(
             name,
             store,
@@ -164,12 +167,14 @@ def clouds(
             lease_max=lease_max,
             origin_deadline=origin_deadline,
             lend_share=lend_share,
+            coalition_of=origin.coalition_robots,
             clock=time.utc,
             monotonic=time.mono,
         )
         overlay = network.join(name, home, link)
         view = FederationView(name, store, link, overlay, clock=time.mono)
-        origin = Origin()
-        home.overlay, home.origin, home.lenders = overlay, origin, view.lenders
-        out[name] = Cloud(name, store, link, home, overlay, view, origin)
+        reconciler = LoanReconciler(
+            home, overlay, origin, view.lenders, clock=time.utc, monotonic=time.mono
+        )
+        out[name] = Cloud(name, store, link, home, overlay, view, origin, reconciler)
     return network, out

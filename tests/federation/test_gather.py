@@ -10,6 +10,7 @@ from federation_testing import clouds
 from robocloud.domain import Task
 from robocloud.iaas import lifecycle as lc
 from robocloud.iaas.actor import RequestActor, Shell
+from robocloud.iaas.routes import RobotRoutes
 from robocloud.iaas.selector import SelectorSettings, failed
 
 TASK = {
@@ -49,12 +50,8 @@ def test_other_clouds_are_asked_while_the_selecting_state_is_written() -> None:
         rules=lc.Rules(),
         blocking=in_thread,
         store_write=slow_store,
-        follow=lambda *_: None,
-        unfollow=lambda *_: None,
         publish=lambda _: None,
-        held=lambda: (),
-        claim=lambda *_: None,
-        unclaim=lambda *_: None,
+        routes=RobotRoutes(),
     )
     life = lc.Life(record.id, Task.model_validate(TASK))
     asyncio.run(RequestActor(shell, life, record).run(lc.Start()))

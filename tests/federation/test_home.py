@@ -109,7 +109,7 @@ def test_a_lease_lapses_unless_dispatched_and_a_confirm_needs_it_live(
     reply = a.overlay.confirm("cloud-b", Reservation(request_id=rid, robots=["b-0", "b-1"]))
     assert reply.taken == ["b-1"] and "no live lease" in (reply.error or "")
     assert a.overlay.confirm("cloud-b", Reservation(request_id=rid, robots=["b-0"])).taken == []
-    b.home.reconcile()  # cloud-a still uses b-0, not b-2
+    b.reconciler.reconcile()  # cloud-a still uses b-0, not b-2
     assert [loan.robot for loan in b.store.loans()] == ["b-0"]
 
 
@@ -259,16 +259,16 @@ def test_the_origin_decides_which_loans_it_still_uses(
     lend(a, record.id, ["b-0", "b-1"])
     lend(a, "req-gone", ["b-2"])
     a.origin.coalitions[record.id] = ["b-0"]  # b-1 failed over to another robot
-    b.home.reconcile()
+    b.reconciler.reconcile()
     assert len(b.store.loans()) == 3  # too young to judge: the origin may not know them yet
     time.advance(11)
     # req-gone is not a request of cloud-a's store: unknown, so over.
-    b.home.reconcile()
+    b.reconciler.reconcile()
     assert [loan.robot for loan in b.store.loans()] == ["b-0"]
     cancels = [(r, cmd.request_id) for r, cmd in b.link.commands if cmd.type == "cancel"]
     assert cancels == [("b-2", "req-gone")]
     a.store.transition(record.id, "canceled")
-    b.home.reconcile()
+    b.reconciler.reconcile()
     assert b.store.loans() == []
 
 
@@ -298,21 +298,21 @@ def test_an_origin_away_past_the_deadline_loses_its_loans_and_learns_it_back(
             b.link.step(0)
 
     with caplog.at_level(logging.INFO, logger="robocloud.federation.home"):
-        b.home.reconcile()  # cloud-a does not answer: the clock starts
+        b.reconciler.reconcile()  # cloud-a does not answer: the clock starts
         wait(59)
-        b.home.reconcile()
+        b.reconciler.reconcile()
         assert len(b.store.loans()) == 2
         wait(2)
-        b.home.reconcile()
+        b.reconciler.reconcile()
         # b-1 is idle: its loan ends; b-0 still travels for cloud-a: it stays.
         assert [loan.robot for loan in b.store.loans()] == ["b-0"]
         assert [loan.robot for loan in b.store.untold_loans("cloud-a")] == ["b-1"]
         b.link.step(10_000)  # b-0 finishes: its loan ends as any finished one
         assert b.store.loans() == []
         network.mend("cloud-a")
-        b.home.reconcile()
-        a.home.reconcile()  # cloud-a asks its lenders
-        a.home.reconcile()  # told once only
+        b.reconciler.reconcile()
+        a.reconciler.reconcile()  # cloud-a asks its lenders
+        a.reconciler.reconcile()  # told once only
     assert a.origin.ended == [
         (rid, "b-1", "cloud-b", "cloud-a was unreachable for 60 s while robot b-1 was idle or done")
     ]
@@ -334,9 +334,9 @@ def test_a_cancel_stops_a_robot_still_working_after_its_loan_ended(
     network.cut("cloud-a")
     b.link.silence("b-0")  # it works on, unheard
     time.advance(6)  # silent: offline for its home
-    b.home.reconcile()
+    b.reconciler.reconcile()
     time.advance(61)
-    b.home.reconcile()
+    b.reconciler.reconcile()
     assert b.home.lent_for("b-0") is None  # the loan ended; the cancel went unheard
     network.mend("cloud-a")
     b.link.recover("b-0")

@@ -71,7 +71,7 @@ def test_renewals_do_not_extend_a_lease_past_lease_max(
     assert reply.taken == robots
     assert "leases at most 30 s until the dispatch, renewals included" in (reply.error or "")
     time.advance(1)
-    b.home.reconcile()  # the lapsed leases end
+    b.reconciler.reconcile()  # the lapsed leases end
     assert b.home.lent_for("b-0") is None and b.home.lent_for("b-1") is None
     assert "refused a reserve from cloud-c for request req-3" in caplog.text
     # Another origin is not held back; the attacker again once a lease_max has passed.

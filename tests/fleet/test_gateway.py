@@ -123,7 +123,7 @@ def test_the_iaas_sees_a_gateways_robots_and_a_lone_robot_and_commands_reach_eac
         assert lone.commands == [json.loads(go.model_dump_json())]
         assert link.cancel(target, "r-g1").ok
         # A robot nobody fronts: no answer from anyone.
-        assert link.assign("g-nobody", go).error == "robot g-nobody did not answer."
+        assert link.assign("g-nobody", go).unanswered
     finally:
         lone.close()
 

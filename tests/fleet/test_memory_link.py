@@ -76,7 +76,7 @@ def test_refusals_cancel_and_faults() -> None:
     assert failed.task.phase == "failed"
 
     link.silence("a-1")
-    assert link.assign("a-1", GO).error == "robot a-1 did not answer."
+    assert link.assign("a-1", GO).unanswered
     clock.now += 6.0
     assert {r.id: r.status for r in link.robots()} == {"a-1": "offline", "a-2": "offline"}
     link.recover("a-1")
@@ -110,3 +110,20 @@ def test_silent_robots_are_forgotten_and_the_fleet_is_bounded(
     assert latest.accept(state_of("a-3"))
     assert sorted(latest.states()) == ["a-0", "a-3"]
     assert sorted(latest.ages()) == ["a-0", "a-3"]
+
+
+def test_a_robot_s_listed_age_is_that_of_what_it_last_said() -> None:
+    """A gateway repeats a silent robot's last state (a new seq, the same sent_at)."""
+    from robocloud.fleet.link import LatestStates
+
+    clock = Clock()
+    latest = LatestStates("cloud-a", offline_after=5.0, clock=clock)
+    said = state_of("a-0", seq=1)
+    assert latest.accept(said)
+    for seq in (2, 3, 4):
+        clock.now += 1.0
+        assert latest.accept(said.model_copy(update={"seq": seq}))  # kept: a new seq
+    assert latest.ages()["a-0"] == pytest.approx(3.0), "nothing new said for 3 s"
+    clock.now += 1.0
+    assert latest.accept(state_of("a-0", seq=5))  # sent_at 5.0: something new
+    assert latest.ages()["a-0"] == pytest.approx(0.0)

@@ -12,6 +12,7 @@ import pydantic
 import pytest
 
 from robocloud.fleet import schemas
+from robocloud.fleet.ingest import Refusal, StateReader
 from robocloud.fleet.messages import COMMAND, PROTOCOL_VERSION, STATES, Ack, State, StateError
 
 DOCS = Path(__file__).parents[2] / "docs" / "protocol"
@@ -156,8 +157,10 @@ def test_the_schema_accepts_what_the_model_accepts(
 
 
 def test_the_schema_is_stricter_where_the_model_is_lenient() -> None:
-    # The IaaS reads JSON leniently (a number in a string); a robot must not
-    # rely on it: the contract is the schema.
+    # The model alone reads leniently (a number in a string); the contract is
+    # the schema, and the IaaS's reader refuses what the schema refuses.
     message = changed(STATE, "battery", "86")
     assert model_accepts("state", message)
     assert not schema_accepts("state", message)
+    refused = StateReader().read(json.dumps(message).encode())
+    assert isinstance(refused, Refusal) and refused.field == "battery"

@@ -11,7 +11,7 @@ from vda5050_testing import factsheet, schema_errors, vda_state
 from robocloud.errors import InvalidInput, NotFound
 from robocloud.fleet.messages import Assign
 from robocloud.gateways.vda5050 import messages as vda
-from robocloud.gateways.vda5050.agv import Agv, BadMessage
+from robocloud.gateways.vda5050.agv import Agv, BadMessage, Stale, Timing, request_of
 from robocloud.gateways.vda5050.capabilities import GatewayCapabilities, load_capabilities
 from robocloud.gateways.vda5050.gateway import robot_id
 
@@ -29,11 +29,16 @@ CAPS = GatewayCapabilities.model_validate(
 NAME = vda.AgvName("acme", "agv-1")
 
 
+def feed(agv: Agv, state: vda.VdaState, now: float) -> None:
+    """The AGV's state at ``now`` (monotonic and unix time alike here)."""
+    agv.on_state(state, now, now)
+
+
 def agv_with(**state: object) -> Agv:
     agv = Agv(NAME, "acme.agv-1")
     agv.on_connection("ONLINE", 0.0)
-    agv.on_factsheet(vda.Factsheet.model_validate(factsheet(["pick", "detectObject"])))
-    agv.on_state(vda.VdaState.model_validate(vda_state(**state)), 0.0)
+    agv.on_factsheet(vda.Factsheet.model_validate(factsheet(["pick", "detectObject"])), 0.0, 0.0)
+    feed(agv, vda.VdaState.model_validate(vda_state(**state)), 0.0)
     return agv
 
 
@@ -93,8 +98,10 @@ def test_the_status_follows_the_vda_state(changes: dict[str, object], status: st
 
 def test_a_broken_connection_or_a_silent_agv_is_offline() -> None:
     agv = agv_with()
-    assert agv.status(59.0) == "idle"
-    assert agv.status(61.0) == "offline"  # no state for a minute
+    # The factsheet gives no defaultStateInterval: 3 of the default 10 s.
+    assert agv.silent_after() == 30.0
+    assert agv.status(29.0) == "idle"
+    assert agv.status(31.0) == "offline"  # its last will or not
     agv.on_connection("CONNECTIONBROKEN", 1.0)
     assert agv.status(1.0) == "offline"
 
@@ -102,10 +109,10 @@ def test_a_broken_connection_or_a_silent_agv_is_offline() -> None:
 def test_bad_values_are_refused_with_a_sentence() -> None:
     agv = agv_with()
     with pytest.raises(BadMessage, match="batteryCharge is 120, not a percent"):
-        agv.on_state(vda.VdaState.model_validate(vda_state(batteryState={
+        feed(agv, vda.VdaState.model_validate(vda_state(batteryState={
             "batteryCharge": 120.0, "charging": False})), 1.0)  # fmt: skip
     with pytest.raises(BadMessage, match="out of range"):
-        agv.on_visualization(vda.AgvPosition(x=1e9, y=0.0))
+        agv.on_visualization(vda.AgvPosition(x=1e9, y=0.0), 1.0, 1.0)
 
 
 def test_an_order_is_followed_to_done() -> None:
@@ -120,21 +127,21 @@ def test_an_order_is_followed_to_done() -> None:
     assert job.work == 4.0  # parallel: the longest
     end = {"nodeId": "req-x.1-end", "sequenceId": 2, "released": True}
     waiting = [{"actionId": a.action_id, "actionStatus": "WAITING"} for a in actions]
-    agv.on_state(vda.VdaState.model_validate(vda_state(
+    feed(agv, vda.VdaState.model_validate(vda_state(
         orderId="req-x.1", nodeStates=[end], actionStates=waiting,
         agvPosition={"x": 20.0, "y": 5.0, "theta": 0, "mapId": "floor-1",
                      "positionInitialized": True})), 2.0)  # fmt: skip
     assert job.accepted and job.phase == "travel"
     assert job.progress == pytest.approx(10 / 14 * 0.5)
     running = [{**w, "actionStatus": "RUNNING"} for w in waiting]
-    agv.on_state(vda.VdaState.model_validate(vda_state(
+    feed(agv, vda.VdaState.model_validate(vda_state(
         orderId="req-x.1", actionStates=running, agvPosition={
             "x": 30.0, "y": 5.0, "theta": 0, "mapId": "floor-1",
             "positionInitialized": True})), 3.0)  # fmt: skip
     assert job.phase == "work"
     assert agv.status(3.0) == "busy"
     finished = [{**w, "actionStatus": "FINISHED"} for w in waiting]
-    agv.on_state(vda.VdaState.model_validate(vda_state(
+    feed(agv, vda.VdaState.model_validate(vda_state(
         orderId="req-x.1", actionStates=finished)), 7.0)  # fmt: skip
     assert agv.job is None
     state = agv.state("cloud-a", CAPS, 7.5, 1.0)
@@ -164,8 +171,9 @@ def test_an_order_fails_as_the_agv_says(changes: dict[str, object], why: str) ->
     accepted = vda_state(orderId="req-x.1", nodeStates=[
         {"nodeId": "req-x.1-end", "sequenceId": 2, "released": True}])  # fmt: skip
     if "orderId" in changes:
-        agv.on_state(vda.VdaState.model_validate(accepted), 2.0)
-    agv.on_state(vda.VdaState.model_validate({**accepted, **changes}), 3.0)
+        feed(agv, vda.VdaState.model_validate(accepted), 2.0)
+    later = {**accepted, **changes, "headerId": accepted["headerId"] + 1}
+    feed(agv, vda.VdaState.model_validate(later), 3.0)
     assert agv.job is None
     assert agv.finished is not None and agv.finished.phase == "failed"
     assert agv.failure == why
@@ -198,8 +206,11 @@ def test_the_capabilities_file_is_checked(tmp_path: Path) -> None:
     assert load_capabilities(str(good)) == CAPS
     assert load_capabilities(None).capabilities == {}
     bad = tmp_path / "bad.json"
-    bad.write_text(json.dumps({"capabilities": {"lift": {"kind": "moving", "time": 1,
-                                                         "cost": 1, "action": "pick"}}}))
+    bad.write_text(
+        json.dumps(
+            {"capabilities": {"lift": {"kind": "moving", "time": 1, "cost": 1, "action": "pick"}}}
+        )
+    )
     with pytest.raises(InvalidInput, match=r"bad.json: capabilities.lift.kind: input should be"):
         load_capabilities(str(bad))
     bad.write_text("{")
@@ -213,10 +224,136 @@ def test_a_failed_task_whose_order_still_runs_is_still_cancelled() -> None:
     agv = agv_with()
     agv.take(Assign(request_id="req-x", location=[30.0, 5.0], capabilities=["lift"]), CAPS, 1.0)
     end = {"nodeId": "req-x.1-end", "sequenceId": 2, "released": True}
-    agv.on_state(vda.VdaState.model_validate(vda_state(orderId="req-x.1", nodeStates=[end], errors=[
+    feed(agv, vda.VdaState.model_validate(vda_state(orderId="req-x.1", nodeStates=[end], errors=[
         {"errorType": "bumper", "errorLevel": "FATAL"}])), 2.0)  # fmt: skip
     assert agv.job is None and agv.failure == "the AGV reports bumper (fatal)"
     assert agv.still_running("req-x") == "req-x.1"  # it holds the order: cancelOrder is due
     assert agv.still_running("req-y") is None
-    agv.on_state(vda.VdaState.model_validate(vda_state(orderId="req-x.1")), 3.0)
+    feed(agv, vda.VdaState.model_validate(vda_state(orderId="req-x.1")), 3.0)
     assert agv.still_running("req-x") is None  # nothing left of it
+
+
+# -- the AGV's word, checked (issue 24) ---------------------------------------------------
+
+
+def test_an_older_or_repeated_state_is_ignored_never_acted_on() -> None:
+    agv = agv_with()
+    agv.take(Assign(request_id="req-x", location=[30.0, 5.0], capabilities=["lift"]), CAPS, 1.0)
+    end = {"nodeId": "req-x.1-end", "sequenceId": 2, "released": True}
+    taken = vda_state(orderId="req-x.1", nodeStates=[end], timestamp="2026-11-29T23:00:40.00Z")
+    feed(agv, vda.VdaState.model_validate(taken), 2.0)
+    assert agv.job is not None and agv.job.accepted
+    # A replay of an old state (lower headerId, older timestamp) would say "dropped the order".
+    old = vda_state(headerId=0, timestamp="2026-11-29T23:00:30.00Z")
+    with pytest.raises(Stale, match=r"headerId 0 of 2026-11-29T23:00:30\.00Z is not newer"):
+        feed(agv, vda.VdaState.model_validate(old), 3.0)
+    with pytest.raises(Stale):  # the same state again
+        feed(agv, vda.VdaState.model_validate(taken), 3.0)
+    # A greater headerId but a timestamp that went back: refused too.
+    back = {**taken, "headerId": taken["headerId"] + 5, "timestamp": "2026-11-29T23:00:39.99Z"}
+    with pytest.raises(Stale):
+        feed(agv, vda.VdaState.model_validate(back), 3.0)
+    assert agv.job is not None and agv.job.order_id == "req-x.1" and agv.failure is None
+    # A new connection (the AGV restarted) counts its headers from 0 again.
+    agv.on_connection("CONNECTIONBROKEN", 4.0)
+    agv.on_connection("ONLINE", 5.0)
+    feed(agv, vda.VdaState.model_validate(vda_state(headerId=0)), 5.0)
+    assert agv.header_id == 0
+
+
+def test_an_order_the_agv_never_shows_fails_with_a_reason_and_is_cancelled() -> None:
+    agv = agv_with()
+    agv.take(Assign(request_id="req-x", location=[30.0, 5.0], capabilities=["lift"]), CAPS, 1.0)
+    feed(agv, vda.VdaState.model_validate(vda_state()), 2.0)  # states, but no order in them
+    agv.tick(5.9)
+    assert agv.job is not None  # 5 s after it was sent at 1.0: not yet
+    # The right orderId with another orderUpdateId is not the order either.
+    feed(agv, vda.VdaState.model_validate(vda_state(orderId="req-x.1", orderUpdateId=3)), 5.9)
+    agv.tick(6.1)
+    assert agv.job is None and agv.not_accepted == 1
+    assert agv.cancels == [("req-x.1", "it never showed the order")]
+    state = agv.state("cloud-a", CAPS, 6.1, 6.1)
+    assert state is not None and state.task is not None and state.task.phase == "failed"
+    assert state.task.reason == (
+        "AGV acme.agv-1: the AGV did not show the order req-x.1 (orderUpdateId 0) in its "
+        "state within 5 s."
+    )
+
+
+def test_a_silent_agv_is_offline_after_three_state_intervals_and_its_task_fails() -> None:
+    agv = agv_with()
+    agv.on_factsheet(vda.Factsheet.model_validate(
+        factsheet(["pick"], state_interval=1.0)), 0.0, 0.0)  # fmt: skip
+    assert agv.silent_after() == 3.0
+    agv.take(Assign(request_id="req-x", location=[30.0, 5.0], capabilities=["lift"]), CAPS, 0.5)
+    feed(agv, vda.VdaState.model_validate(vda_state(orderId="req-x.1", nodeStates=[
+        {"nodeId": "req-x.1-end", "sequenceId": 2, "released": True}])), 1.0)  # fmt: skip
+    state = agv.state("cloud-a", CAPS, 3.5, 1767225603.5)
+    assert state is not None and state.status == "busy"
+    assert state.sent_at == 1.0  # the AGV's last word, not the time of publishing
+    agv.tick(4.1)
+    assert agv.status(4.1) == "offline" and agv.job is None
+    assert agv.finished is not None and agv.finished.reason is not None
+    assert "silent for 3.1 s, over the 3 s allowed" in agv.finished.reason
+    assert agv.cancels == [("req-x.1", "it went silent")]
+    # The VDA 5050 bound: never more than 30 s, whatever the factsheet says.
+    assert Timing().silent_after(60.0) == 30.0
+
+
+def test_an_order_found_after_a_restart_is_adopted_then_cancelled_unless_assigned_again() -> None:
+    end = {"nodeId": "req-x.4-end", "sequenceId": 2, "released": True}
+    running = [{"actionId": "req-x.4-lift", "actionStatus": "WAITING"}]
+    # The gateway restarted: this AGV is on an order of the gateway before.
+    agv = agv_with(orderId="req-x.4", nodeStates=[end], actionStates=running)
+    job = agv.job
+    assert job is not None and job.adopted and not job.confirmed
+    assert job.request_id == "req-x" and job.capabilities == ("lift",)
+    assert agv.notes and "found on order req-x.4 of request req-x" in agv.notes[0]
+    state = agv.state("cloud-a", CAPS, 1.0, 1.0)
+    assert state is not None and state.task is not None and state.task.request_id == "req-x"
+    agv.tick(5.1)
+    assert agv.job is None
+    assert agv.finished is not None and agv.finished.phase == "failed"
+    assert agv.cancels == [
+        ("req-x.4", "the IaaS did not assign request req-x to it since the gateway started")
+    ]
+    agv.tick(6.0)
+    assert len(agv.cancels) == 1  # again at most every 2 s while the AGV keeps at it
+    agv.tick(7.2)
+    assert len(agv.cancels) == 2
+    # The IaaS assigns it again within the grace: the order is kept, nothing cancelled.
+    kept = agv_with(orderId="req-x.4", nodeStates=[end], actionStates=running)
+    again = Assign(request_id="req-x", location=[30.0, 5.0], capabilities=["lift"])
+    assert kept.refuse(again, CAPS, 2.0) is None
+    kept.tick(9.0)
+    assert kept.job is not None and kept.job.confirmed and kept.cancels == []
+    # A new order for that request after it never reuses the id the AGV knows.
+    kept.cancel()
+    feed(kept, vda.VdaState.model_validate(vda_state(orderId="req-x.4")), 9.5)
+    kept.take(again, CAPS, 10.0)
+    assert kept.job is not None and kept.job.order_id == "req-x.5"
+
+
+def test_an_order_of_another_form_is_left_alone_and_ended_jobs_are_cancelled() -> None:
+    other = agv_with(orderId="wms-77", nodeStates=[
+        {"nodeId": "n", "sequenceId": 2, "released": True}])  # fmt: skip
+    other.tick(60.0)
+    assert other.job is None and other.cancels == [] and other.status(1.0) == "busy"
+    assert request_of("wms-77") is None and request_of("r.1.2") == "r.1"
+    # A job the gateway sent that failed while the AGV keeps the order: cancelled at once.
+    agv = agv_with()
+    agv.take(Assign(request_id="req-x", location=[30.0, 5.0], capabilities=["lift"]), CAPS, 1.0)
+    end = {"nodeId": "req-x.1-end", "sequenceId": 2, "released": True}
+    feed(agv, vda.VdaState.model_validate(vda_state(orderId="req-x.1", nodeStates=[end], errors=[
+        {"errorType": "bumper", "errorLevel": "FATAL"}])), 2.0)  # fmt: skip
+    assert agv.cancels == [("req-x.1", "its robocloud task is over")]
+
+
+def test_an_agv_remembers_only_its_newest_orders() -> None:
+    agv = agv_with()
+    go = Assign(request_id="req-x", location=[30.0, 5.0], capabilities=["lift"])
+    for n in range(100):
+        agv.take(go.model_copy(update={"request_id": f"req-{n}"}), CAPS, 1.0)
+        agv.cancel()
+    assert len(agv.sent_orders) == 64 and "req-99.100" in agv.sent_orders
+    assert "req-0.1" not in agv.sent_orders

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 from typing import Any
 
@@ -18,9 +19,13 @@ def schema_errors(name: str, message: Any) -> list[str]:
     return [f"{e.instance_path}: {e.message}" for e in validator.iter_errors(message)]
 
 
+HEADER_IDS = itertools.count(1)
+
+
 def vda_state(**changes: Any) -> dict[str, Any]:
+    """A valid VDA 5050 state; each has a new headerId (as an AGV's states do), same timestamp."""
     state: dict[str, Any] = {
-        "headerId": 1, "timestamp": "2026-11-29T23:00:38.12Z", "version": "2.1.0",
+        "headerId": next(HEADER_IDS), "timestamp": "2026-11-29T23:00:38.12Z", "version": "2.1.0",
         "manufacturer": "acme", "serialNumber": "agv-1",
         "orderId": "", "orderUpdateId": 0, "lastNodeId": "", "lastNodeSequenceId": 0,
         "nodeStates": [], "edgeStates": [], "driving": False, "actionStates": [],
@@ -34,8 +39,13 @@ def vda_state(**changes: Any) -> dict[str, Any]:
     return state
 
 
-def factsheet(actions: list[str], speed: float = 2.0) -> dict[str, Any]:
+def factsheet(
+    actions: list[str], speed: float = 2.0, state_interval: float | None = None
+) -> dict[str, Any]:
+    limits = {} if state_interval is None else {
+        "protocolLimits": {"timing": {"defaultStateInterval": state_interval}}}  # fmt: skip
     return {
+        **limits,
         "protocolFeatures": {
             "optionalParameters": [],
             "agvActions": [{"actionType": a, "actionScopes": ["NODE"]} for a in actions]

@@ -5,7 +5,11 @@ retained), says ONLINE (retained), answers ``factsheetRequest`` with its
 factsheet, publishes its state once a second and on every event, drives an
 order's nodes in a straight line at ``speed`` and runs the actions of each
 node it reaches (SOFT ones together, HARD ones one after the other) for
-``action_time`` seconds each, and obeys ``cancelOrder``. Every order and
+``action_time`` seconds each, and obeys ``cancelOrder``. Each action it
+finishes is logged (``{"did": actionId}``), so a test can count the picks.
+Misbehaviour on demand: ``ignore_orders`` (it receives orders but never takes
+one: its state never shows them), ``freeze()`` (it stops publishing while its
+connection stays up: no last will). Every order and
 instant action it receives is checked against the official JSON schemas
 (as the PyPI package vda5050-sdk ships them) and kept, with what the schema said.
 
@@ -40,11 +44,15 @@ def official_schemas() -> Path:
     The package (a dev dependency) carries copies of the VDA 5050 community's
     schemas; they are read where it installed them, never copied here.
     """
-    folder = Path(str(importlib.metadata.distribution("vda5050-sdk").locate_file(
-        "vda5050/validation/schemas")))
+    folder = Path(
+        str(
+            importlib.metadata.distribution("vda5050-sdk").locate_file("vda5050/validation/schemas")
+        )
+    )
     if not (folder / "order.json").is_file():
         raise SystemExit(
-            f"the VDA 5050 schemas are not at {folder}: install vda5050-sdk (make venv)")
+            f"the VDA 5050 schemas are not at {folder}: install vda5050-sdk (make venv)"
+        )
     return folder
 
 
@@ -81,6 +89,8 @@ class Vehicle:
         action_time: float = 0.5,
         battery: float = 90.0,
         log: Path | None = None,
+        ignore_orders: bool = False,
+        keepalive: int = 2,
     ) -> None:
         self.base = f"{interface}/v2/{manufacturer}/{serial}"
         self.manufacturer, self.serial = manufacturer, serial
@@ -88,6 +98,7 @@ class Vehicle:
         self.actions = actions
         self.speed, self.action_time, self.battery = speed, action_time, battery
         self.log = log
+        self.ignore_orders = ignore_orders
         self.lock = threading.RLock()
         self.received: list[dict[str, Any]] = []  # {"topic", "message", "errors"}
         self.headers: dict[str, int] = {}
@@ -102,6 +113,7 @@ class Vehicle:
         self.queued: list[dict[str, Any]] = []  # HARD actions waiting their turn
         self.driving = False
         self.dropped = False
+        self.did: list[str] = []  # actions finished
         self.stop = threading.Event()
         self.client = mqtt.Client(
             CallbackAPIVersion.VERSION2, client_id=f"vehicle-{serial}-{time.time_ns()}"
@@ -114,7 +126,7 @@ class Vehicle:
         )
         self.client.on_message = self._on_message
         self.client.on_connect = self._on_connect
-        self.client.connect(host, port, keepalive=2)
+        self.client.connect(host, port, keepalive=keepalive)
         self.client.loop_start()
         self.thread = threading.Thread(target=self._run, daemon=True)
         self.thread.start()
@@ -149,7 +161,8 @@ class Vehicle:
                                    "accelerationMax": 1.0, "decelerationMax": 1.0,
                                    "heightMax": 1.0, "width": 1.0, "length": 1.5},
             "protocolLimits": {"maxStringLens": {}, "maxArrayLens": {},
-                               "timing": {"minOrderInterval": 0.1, "minStateInterval": 0.1}},
+                               "timing": {"minOrderInterval": 0.1, "minStateInterval": 0.1,
+                                          "defaultStateInterval": 1.0}},
             "protocolFeatures": {
                 "optionalParameters": [],
                 "agvActions": [
@@ -189,10 +202,13 @@ class Vehicle:
             }  # fmt: skip
 
     def publish_state(self) -> None:
-        state = self.state()
-        problems = schema_errors("state", state)
-        assert not problems, problems  # the test vehicle itself keeps to the schema
-        self.client.publish(f"{self.base}/state", json.dumps(state), qos=0)
+        if self.stop.is_set():
+            return  # frozen, or leaving
+        with self.lock:  # numbered and sent in one go: two threads publish, in order
+            state = self.state()
+            problems = schema_errors("state", state)
+            assert not problems, problems  # the test vehicle itself keeps to the schema
+            self.client.publish(f"{self.base}/state", json.dumps(state), qos=0)
 
     # -- messages in -------------------------------------------------------------------
 
@@ -203,15 +219,19 @@ class Vehicle:
         record = {"topic": msg.topic, "message": message, "errors": errors}
         with self.lock:
             self.received.append(record)
-            if self.log is not None:
-                with self.log.open("a") as out:
-                    out.write(json.dumps(record) + "\n")
+            self._write(record)
             if what == "order":
-                self._take(message)
+                if not self.ignore_orders:
+                    self._take(message)
             else:
                 for action in message.get("actions", []):
                     self._instant(action)
         self.publish_state()
+
+    def _write(self, record: dict[str, Any]) -> None:
+        if self.log is not None:
+            with self.log.open("a") as out:
+                out.write(json.dumps(record) + "\n")
 
     def _take(self, order: dict[str, Any]) -> None:
         self.order_id, self.order_update_id = order["orderId"], order["orderUpdateId"]
@@ -260,6 +280,8 @@ class Vehicle:
             if now >= ends:
                 self.running.remove((action_id, ends))
                 self._status(action_id, "FINISHED")
+                self.did.append(action_id)
+                self._write({"did": action_id})
                 changed = True
         if not self.running and self.queued:
             action = self.queued.pop(0)
@@ -296,6 +318,11 @@ class Vehicle:
             if state["actionId"] == action_id:
                 state["actionStatus"] = status
 
+    def freeze(self) -> None:
+        """Stop publishing, connection kept (MQTT keep-alive goes on): no last will."""
+        self.stop.set()
+        self.thread.join(5)
+
     def drop(self) -> None:
         """Lose the connection without a word: the broker publishes the last will."""
         self.stop.set()
@@ -329,13 +356,17 @@ def main() -> None:
     parser.add_argument("--actions", default="pick")
     parser.add_argument("--speed", type=float, default=5.0)
     parser.add_argument("--action-time", type=float, default=0.5)
+    parser.add_argument("--host", default="127.0.0.1")
     parser.add_argument("--port", type=int, default=1883)
     parser.add_argument("--log", type=Path)
+    parser.add_argument("--ignore-orders", action="store_true")
+    parser.add_argument("--keepalive", type=int, default=2, help="MQTT keep-alive, seconds")
     args = parser.parse_args()
     vehicle = Vehicle(
         args.interface, args.manufacturer, args.serial, (args.x, args.y),
-        args.actions.split(","), port=args.port, speed=args.speed,
-        action_time=args.action_time, log=args.log,
+        args.actions.split(","), host=args.host, port=args.port, speed=args.speed,
+        action_time=args.action_time, log=args.log, ignore_orders=args.ignore_orders,
+        keepalive=args.keepalive,
     )  # fmt: skip
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())

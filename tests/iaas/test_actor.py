@@ -13,6 +13,7 @@ from robocloud.federation.view import FederationView
 from robocloud.fleet import MemoryRobotLink
 from robocloud.iaas import lifecycle as lc
 from robocloud.iaas.actor import Inbox, RequestActor, Shell
+from robocloud.iaas.routes import RobotRoutes
 from robocloud.selection.pipeline import select_problem
 from robocloud.storage import MemoryRequestStore, StoreUnavailable
 
@@ -41,12 +42,8 @@ def shell_for(store: MemoryRequestStore) -> Shell:
         rules=lc.Rules(),
         blocking=call,
         store_write=call,
-        follow=lambda *_: None,
-        unfollow=lambda *_: None,
         publish=lambda _: None,
-        held=lambda: (),
-        claim=lambda *_: None,
-        unclaim=lambda *_: None,
+        routes=RobotRoutes(),
     )
 
 

@@ -21,9 +21,9 @@ from fastapi.testclient import TestClient
 
 from robocloud.domain import Robot, Task
 from robocloud.fleet import MemoryRobotLink
+from robocloud.iaas.admission import BUSY_MIN
 from robocloud.iaas.app import create_app
 from robocloud.iaas.config import Settings
-from robocloud.iaas.service import BUSY_MIN
 from robocloud.selection.pipeline import select_problem
 from robocloud.selection.problem import CoalitionProblem
 from robocloud.selection.result import SelectionResult

@@ -2,7 +2,7 @@
 
 A real uvicorn server on loopback (the app over the in-memory store and robot
 link) and Playwright driving ``/usr/bin/chromium``
-(``tests/wildfire/ensure_chromium.sh`` installs it; ``make test`` runs it).
+(``tests/chromium_browser.py``: without it the test fails saying what to install).
 """
 
 from __future__ import annotations
@@ -11,19 +11,18 @@ import socket
 import threading
 import time
 from collections.abc import Iterator
-from pathlib import Path
 from typing import Any
 
 import httpx
 import pytest
 import uvicorn
 
+from chromium_browser import launch_chromium
 from robocloud.fleet import MemoryRobotLink
 from robocloud.iaas.app import create_app
 from robocloud.iaas.config import Settings
 from robocloud.storage import MemoryRequestStore
 
-CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_ARGS = ["--headless=new", "--no-sandbox", "--disable-gpu", "--no-first-run",
                  "--disable-background-networking", "--disable-component-update"]
 
@@ -55,9 +54,6 @@ def server() -> Iterator[str]:
 
 
 def test_swagger_ui_renders_with_no_network_but_the_iaas(server: str) -> None:
-    if not Path(CHROMIUM).exists():
-        pytest.fail(f"{CHROMIUM} is missing: run tests/wildfire/ensure_chromium.sh "
-                    "(make test does).", pytrace=False)
     from playwright.sync_api import expect, sync_playwright
 
     outside: list[str] = []
@@ -71,7 +67,7 @@ def test_swagger_ui_renders_with_no_network_but_the_iaas(server: str) -> None:
             route.abort()
 
     with sync_playwright() as playwright:
-        browser = playwright.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+        browser = launch_chromium(playwright, CHROMIUM_ARGS)
         try:
             page = browser.new_page()
             page.set_default_timeout(15_000)

@@ -33,7 +33,10 @@ NOW = lc.Now(mono=100.0, wall=1000.0)
 LATER = lc.Now(mono=100.5, wall=1000.5)
 MUCH_LATER = lc.Now(mono=110.0, wall=1010.0)
 
-BOTH = lc.Member("a-1", "cloud-a", ("grabber", "light"), 30.0, 5.0, since=100.0, heard_at=100.0)
+BOTH = lc.Member(
+    "a-1", "cloud-a", ("grabber", "light"), 30.0, 5.0,
+    since=100.0, heard_at=100.0, progressed_at=100.0,
+)  # fmt: skip
 LIGHT = replace(BOTH, capabilities=("light",), phase="travel", confirmed=True)
 NEW = lc.Member("a-9", "cloud-b", ("grabber", "light"), 40.0, 6.0)
 
@@ -90,7 +93,14 @@ EVENTS: dict[str, tuple[lc.Event, lc.Now]] = {
     "reserved": (lc.Reserved(()), NOW),
     "taken": (lc.Reserved(("a-1",)), NOW),
     "acked": (lc.Acked({}), NOW),
-    "refused": (lc.Acked({"a-1": "robot a-1 did not answer."}), NOW),
+    "refused": (lc.Acked({"a-1": "robot a-1 does not have grabber."}), NOW),
+    "no ack": (
+        lc.Acked(
+            {"a-1": "robot a-1 did not answer within the ack deadline (2 s)."},
+            frozenset({"a-1"}),
+        ),
+        NOW,
+    ),
     "travel": (lc.RobotReport("a-1", "busy", 80.0, "travel", 0.4), LATER),
     "done": (lc.RobotReport("a-1", "idle", 70.0, "done", 1.0), LATER),
     "died": (lc.RobotReport("a-1", "offline", 0.0, "failed", 0.5), LATER),
@@ -105,14 +115,16 @@ EVENTS: dict[str, tuple[lc.Event, lc.Now]] = {
 
 # Shorthands for the effects' names in the table.
 END = ["Commit", "StopRobots", "Release", "Unfollow"]  # a final state with robots at work
-FAIL_ONE = ["Unfollow", "StopRobots", "Release", "Note"]  # a robot failed
+FAIL_ONE = ["Unfollow", "StopRobots", "Release", "Note", "RobotFailed"]  # a robot failed
 REPLACE = [*FAIL_ONE, "Select"]  # ... and a replacement is selected
 NOTHING: tuple[str | None, list[str]] = (None, [])  # state unchanged, no effect
+UNCLAIM: tuple[str | None, list[str]] = (None, ["Unclaim"])  # a late choice is free again
 
 # situation -> event -> (state afterwards, or None for unchanged; effect names in order).
 # An event missing from a situation's row is NOTHING.
 TABLE: dict[str, dict[str, tuple[str | None, list[str]]]] = {
     "received": {
+        "selected": UNCLAIM,
         "start": ("selecting", ["Commit", "Select"]),
         "resume": ("selecting", ["ReleaseAll", "Note", "Commit", "Select"]),
         "cancel": ("canceled", ["Commit"]),
@@ -127,15 +139,20 @@ TABLE: dict[str, dict[str, tuple[str | None, list[str]]]] = {
         "crash": ("failed", ["Commit"]),
     },
     "reserving": {
-        "reserved": (None, ["Follow", "Assign"]),
-        "taken": (None, ["Note", "Select"]),
+        "selected": UNCLAIM,
+        "reserved": (None, ["Follow", "Unclaim", "Assign"]),
+        "taken": (None, ["Unclaim", "Note", "Select"]),
         "cancel": ("canceled", ["Commit"]),
         "loan ended": (None, ["Note"]),
         "crash": ("failed", ["Commit"]),
     },
     "assigning": {
         "acked": ("dispatched", ["Commit", "Confirm"]),
+        "selected": UNCLAIM,
         "refused": (None, ["StopRobots", "Unfollow", "Release", "Note", "Select"]),
+        "no ack": (
+            None, ["StopRobots", "Unfollow", "Release", "RobotFailed", "Note", "Select"]
+        ),
         "cancel": ("canceled", END),
         "loan ended": (None, ["Note"]),
         "crash": ("failed", END),
@@ -143,10 +160,11 @@ TABLE: dict[str, dict[str, tuple[str | None, list[str]]]] = {
     "dispatched": {
         "start": (None, ["Follow", "Note"]),
         "resume": (None, ["Follow", "Note"]),
+        "selected": UNCLAIM,
         "travel": ("underway", ["Commit"]),
-        "done": ("completed", ["Commit", "Commit", "Release", "Unfollow"]),
+        "done": ("completed", ["RobotDone", "Commit", "Commit", "Release", "Unfollow"]),
         "died": (None, REPLACE),
-        "last done": ("completed", ["Commit", "Commit", "Release", "Unfollow"]),
+        "last done": ("completed", ["RobotDone", "Commit", "Commit", "Release", "Unfollow"]),
         "silence": (None, REPLACE),
         "cancel": ("canceled", END),
         "loan ended": (None, ["Note", *REPLACE]),
@@ -155,10 +173,11 @@ TABLE: dict[str, dict[str, tuple[str | None, list[str]]]] = {
     "underway": {
         "start": (None, ["Follow", "Note"]),
         "resume": (None, ["Follow", "Note"]),
+        "selected": UNCLAIM,
         "travel": (None, ["Publish"]),
-        "done": ("completed", ["Commit", "Release", "Unfollow"]),
+        "done": ("completed", ["RobotDone", "Commit", "Release", "Unfollow"]),
         "died": (None, REPLACE),
-        "last done": ("completed", ["Commit", "Release", "Unfollow"]),
+        "last done": ("completed", ["RobotDone", "Commit", "Release", "Unfollow"]),
         "other": (None, REPLACE),
         "silence": (None, REPLACE),
         "cancel": ("canceled", END),
@@ -169,23 +188,29 @@ TABLE: dict[str, dict[str, tuple[str | None, list[str]]]] = {
         "selected": (None, ["Reserve"]),
         "none": ("failed", END),
         "travel": (None, ["Publish"]),
-        "done": (None, ["Publish"]),
+        "done": (None, ["RobotDone", "Publish"]),
         "died": (None, FAIL_ONE),
-        "last done": (None, ["Publish"]),
+        "last done": (None, ["RobotDone", "Publish"]),
         "other": (None, FAIL_ONE),
         "silence": (None, FAIL_ONE),
         "cancel": ("canceled", END),
         "loan ended": (None, ["Note", *FAIL_ONE]),
         "crash": ("failed", END),
     },
-    "completed": {},
-    "rejected": {},
-    "canceled": {},
-    "failed": {},
-    "canceled while reserving": {"reserved": (None, ["Release"])},
+    "completed": {"selected": UNCLAIM},
+    "rejected": {"selected": UNCLAIM},
+    "canceled": {"selected": UNCLAIM},
+    "failed": {"selected": UNCLAIM},
+    "canceled while reserving": {
+        "selected": UNCLAIM,
+        "reserved": (None, ["Unclaim", "Release"]),
+        "taken": UNCLAIM,
+    },
     "canceled while assigning": {
+        "selected": UNCLAIM,
         "acked": (None, ["StopRobots", "Release"]),
         "refused": (None, ["StopRobots", "Release"]),
+        "no ack": (None, ["StopRobots", "Release"]),
     },
 }
 
@@ -210,14 +235,24 @@ def test_the_table_covers_every_event_type() -> None:
 
 def test_a_late_acknowledgement_gets_a_stop_and_the_robot_is_not_chosen_again() -> None:
     life = SITUATIONS["assigning"]
-    _, effects = lc.decide(life, EVENTS["refused"][0], NOW)
+    _, effects = lc.decide(life, EVENTS["no ack"][0], NOW)
     stop = next(e for e in effects if isinstance(e, lc.StopRobots))
     assert stop.robots == (("a-1", "cloud-a"),)
     select = next(e for e in effects if isinstance(e, lc.Select))
     assert "a-1" in select.exclude
     note = next(e for e in effects if isinstance(e, lc.Note))
-    assert "did not answer" in note.detail and "attempt 2" in note.detail
+    assert "did not answer within the ack deadline" in note.detail and "attempt 2" in note.detail
+    assert "refused" not in note.detail, "no answer is not a refusal"
     assert ".;" not in note.detail  # the robot's sentence loses its full stop before the "; "
+    failed = next(e for e in effects if isinstance(e, lc.RobotFailed))
+    assert (failed.robot, failed.cause) == ("a-1", "no_ack")
+
+
+def test_a_refusal_is_said_as_one_and_does_not_count_against_the_robot() -> None:
+    _, effects = lc.decide(SITUATIONS["assigning"], EVENTS["refused"][0], NOW)
+    note = next(e for e in effects if isinstance(e, lc.Note))
+    assert note.detail.startswith("robot a-1 refused the task: robot a-1 does not have grabber;")
+    assert not any(isinstance(e, lc.RobotFailed) for e in effects)
 
 
 def test_a_refusal_names_the_robots_of_the_try_told_to_stop() -> None:
@@ -280,7 +315,8 @@ def test_a_replacement_asks_for_what_is_missing_within_what_is_left() -> None:
     fast = replace(life, rules=lc.Rules(time_scale=10.0))
     after, effects = lc.decide(fast, lc.LoanEnded("a-1", "cloud-b", "gone"), later)
     assert after.state == "failed"
-    assert "no time is left of max_time 300 s" in str(effects[5])
+    commit = next(e for e in effects if isinstance(e, lc.Commit))
+    assert "no time is left of max_time 300 s" in str(commit.reason)
 
 
 def test_a_replacement_updates_the_coalition_now() -> None:
@@ -337,9 +373,115 @@ def test_too_many_attempts_fail_the_request_with_the_reason() -> None:
     )
     after, effects = lc.decide(life, lc.Reserved(("a-1",)), NOW)
     assert after.state == "failed"
-    commit = effects[0]
+    assert effects[0] == lc.Unclaim((("a-1", "cloud-a"),))
+    commit = effects[1]
     assert isinstance(commit, lc.Commit)
     assert commit.reason is not None and "in 8 attempts" in commit.reason
+
+
+# -- the watchdog --------------------------------------------------------------------------
+
+
+def _effect(effects: list[lc.Effect], kind: type[lc.Effect]) -> lc.Effect:
+    return next(e for e in effects if isinstance(e, kind))
+
+
+def test_a_robot_past_its_expected_finish_is_stopped_and_replaced() -> None:
+    life = SITUATIONS["underway"]  # a-1: t_i 30 s, dispatched at wall 1000
+    # Its tolerance is the larger of 50% of 30 s and 30 s: due at 1060.
+    heard = lc.Now(mono=159.0, wall=1059.0)
+    on_time = replace(life, members={"a-1": replace(life.members["a-1"], heard_at=159.0,
+                                                    progressed_at=159.0)})
+    assert lc.decide(on_time, lc.Tick(), heard)[1] == []
+    after, effects = lc.decide(on_time, lc.Tick(), lc.Now(mono=160.0, wall=1061.0))
+    failed = _effect(effects, lc.RobotFailed)
+    assert isinstance(failed, lc.RobotFailed) and failed.cause == "overrun"
+    assert _effect(effects, lc.StopRobots) == lc.StopRobots((("a-1", "cloud-a"),))
+    note = _effect(effects, lc.Note)
+    assert isinstance(note, lc.Note)
+    assert note.detail == (
+        "robot a-1 failed: it is past its expected finish (30 s robot time, plus 30 s of "
+        "tolerance) by 1 s"
+    )
+    assert isinstance(effects[-1], lc.Select), "a replacement is selected"
+    assert "a-1" in after.excluded
+
+
+def test_the_tolerance_is_half_the_expected_time_when_that_is_more_than_30_s() -> None:
+    rules = lc.Rules()
+    assert rules.tolerance(30.0) == 30.0
+    assert rules.tolerance(200.0) == 100.0
+    assert lc.Rules(time_scale=10.0).due(1000.0, 200.0) == pytest.approx(1030.0)
+
+
+def test_progress_reported_extends_nothing() -> None:
+    life = SITUATIONS["underway"]
+    late = lc.Now(mono=160.0, wall=1061.0)
+    progressing = lc.RobotReport("a-1", "busy", 80.0, "travel", 0.9)
+    life, _ = lc.decide(life, progressing, late)
+    _, effects = lc.decide(life, lc.Tick(), late)
+    failed = _effect(effects, lc.RobotFailed)
+    assert isinstance(failed, lc.RobotFailed) and failed.cause == "overrun"
+
+
+def test_a_robot_that_reports_no_progress_has_stalled() -> None:
+    life = SITUATIONS["underway"]  # progress 0.2 since mono 100
+    same = lc.RobotReport("a-1", "busy", 80.0, "travel", 0.2)
+    for mono in (110.0, 120.0, 129.0):
+        life, effects = lc.decide(life, same, lc.Now(mono, 1000.0 + mono - 100.0))
+        assert not any(isinstance(e, lc.RobotFailed) for e in effects)
+        life, effects = lc.decide(life, lc.Tick(), lc.Now(mono, 1000.0 + mono - 100.0))
+        assert effects == []
+    _, effects = lc.decide(life, lc.Tick(), lc.Now(131.0, 1031.0))
+    failed = _effect(effects, lc.RobotFailed)
+    assert isinstance(failed, lc.RobotFailed) and failed.cause == "stalled"
+    assert "no progress for 31 s" in failed.why
+
+
+def test_a_stale_report_moves_nothing_back() -> None:
+    life = SITUATIONS["underway"]
+    working = lc.RobotReport("a-1", "busy", 80.0, "work", 0.6)
+    life, _ = lc.decide(life, working, lc.Now(105.0, 1005.0))
+    for stale in (
+        lc.RobotReport("a-1", "busy", 80.0, "travel", 0.3),  # an older phase, replayed
+        lc.RobotReport("a-1", "busy", 80.0, "work", 0.5),  # progress going back
+    ):
+        after, _ = lc.decide(life, stale, lc.Now(110.0, 1010.0))
+        member = after.members["a-1"]
+        assert (member.phase, member.progress) == ("work", 0.6)
+        assert member.progressed_at == 105.0, "a stale report is no progress"
+        assert member.heard_at == 110.0, "but the robot is heard"
+
+
+def test_a_robot_s_reason_for_failing_reaches_the_history() -> None:
+    report = lc.RobotReport(
+        "a-1", "idle", 80.0, "failed", 0.4, reason="navigation aborted: no path to the goal."
+    )
+    _, effects = lc.decide(SITUATIONS["underway"], report, LATER)
+    note = _effect(effects, lc.Note)
+    assert isinstance(note, lc.Note)
+    assert note.detail == (
+        "robot a-1 failed: it reported that it cannot finish its task: navigation aborted: "
+        "no path to the goal"
+    )
+    failed = _effect(effects, lc.RobotFailed)
+    assert isinstance(failed, lc.RobotFailed) and failed.cause == "reported"
+
+
+def test_a_request_is_never_underway_past_max_time_plus_its_tolerance() -> None:
+    done = replace(LIGHT, phase="done", progress=1.0)
+    life = replace(SITUATIONS["replacing"], members={"a-1": done})  # waits for a grabber
+    due = 1000.0 + 300.0 + 150.0
+    _, effects = lc.decide(life, lc.Tick(), lc.Now(mono=101.0, wall=due - 1))
+    assert effects == []
+    after, effects = lc.decide(life, lc.Tick(), lc.Now(mono=101.0, wall=due + 1))
+    assert after.state == "failed"
+    commit = _effect(effects, lc.Commit)
+    assert isinstance(commit, lc.Commit)
+    assert commit.reason == (
+        "it ran past its max_time of 300 s plus the tolerance of 150 s (robot time); "
+        "no robot was left working"
+    )
 
 
 # -- random sequences over competing requests -------------------------------------------
@@ -361,6 +503,10 @@ class World:
         self.pending: dict[str, lc.Effect] = {}  # request -> its operation in flight
         self.told: dict[str, set[str]] = {rid: set() for rid in self.lives}  # stop commands
         self.released: dict[str, set[str]] = {rid: set() for rid in self.lives}
+        # Robots a selection chose, claimed by the shell until an Unclaim.
+        self.claimed: dict[str, set[str]] = {rid: set() for rid in self.lives}
+        self.commanded: dict[str, set[str]] = {rid: set() for rid in self.lives}  # ever sent
+        self.done: dict[str, set[str]] = {rid: set() for rid in self.lives}  # parts finished
         self.now = lc.Now(0.0, 0.0)
 
     def step(self, rid: str, event: lc.Event) -> None:
@@ -379,8 +525,15 @@ class World:
             case lc.Commit(state) if state in FINAL_STATES:
                 # The store releases every reservation of a request that ends.
                 self.holder = {r: h for r, h in self.holder.items() if h != rid}
-            case lc.Select() | lc.Reserve() | lc.Assign():
+            case lc.Assign(members):
                 self.pending[rid] = effect
+                self.commanded[rid] |= {m.robot for m in members}
+            case lc.Select() | lc.Reserve():
+                self.pending[rid] = effect
+            case lc.Unclaim(robots):
+                self.claimed[rid] -= {r for r, _ in robots}
+            case lc.RobotDone(robot):
+                self.done[rid].add(robot)
             case lc.StopRobots(robots):
                 self.told[rid] |= {r for r, _ in robots}
             case lc.Release(robots):
@@ -405,6 +558,7 @@ class World:
                 if not pick:
                     return lc.Selected(None, {}, "nothing fits")
                 chosen = tuple(lc.Member(r, "cloud-a", CAPS[r], 10.0, 1.0) for r in pick)
+                self.claimed[rid] |= set(pick)  # as the shell claims what it chose
                 return lc.Selected(chosen, {"chosen": None})
             case lc.Reserve(robots):
                 if self.lives[rid].final:
@@ -424,6 +578,22 @@ class World:
     def check(self) -> None:
         working: dict[str, str] = {}
         for rid, life in self.lives.items():
+            attempt = life.attempt
+            reserving = (
+                {m.robot for m in attempt.chosen}
+                if attempt is not None and attempt.stage == "reserving"
+                else set()
+            )
+            assert self.claimed[rid] <= reserving, (
+                f"robots {self.claimed[rid] - reserving} stay claimed by {rid}, which no "
+                "longer needs them"
+            )
+            followed = {m.robot for m in life.followed()}
+            ended = self.commanded[rid] - followed - self.done[rid]
+            assert ended <= self.told[rid], (
+                f"robots {ended - self.told[rid]} were sent for {rid} and their part ended "
+                "without a stop"
+            )
             if life.final:
                 continue
             for member in life.members.values():
@@ -470,9 +640,12 @@ def test_random_sequences_keep_the_invariants(data: st.DataObject) -> None:
             phase = data.draw(st.sampled_from([None, "travel", "work", *["done"] * 3, "failed"]))
             last = data.draw(st.sampled_from([None, "done"]))
             status = "offline" if phase == "failed" else "busy"
-            event = lc.RobotReport(robot, status, 50.0, phase, 0.5, last)
+            progress = data.draw(st.sampled_from([0.2, 0.5, 0.8]))
+            event = lc.RobotReport(robot, status, 50.0, phase, progress, last)
         elif kind == "tick":
-            world.now = lc.Now(world.now.mono + data.draw(st.floats(0.1, 8.0)), world.now.wall + 1)
+            # Up to 20 s at once: silence (5 s), stalls (30 s), overruns (10 + 30 s).
+            step = data.draw(st.floats(0.1, 20.0))
+            world.now = lc.Now(world.now.mono + step, world.now.wall + step)
             event = lc.Tick()
         elif kind == "cancel":
             event = lc.CancelAsked()
@@ -493,3 +666,15 @@ def test_random_sequences_keep_the_invariants(data: st.DataObject) -> None:
         if not world.lives[rid].final:
             world.step(rid, lc.CancelAsked())
         world.check_finished(rid, commanded[rid])
+
+
+def test_a_robot_heard_again_after_a_silence_is_reminded_of_its_task() -> None:
+    """A restarted gateway keeps an AGV's order only if the IaaS assigns it again."""
+    life = SITUATIONS["underway"]  # a-1 heard at mono 100
+    travel = lc.RobotReport("a-1", "busy", 80.0, "travel", 0.5)
+    _, effects = lc.decide(life, travel, lc.Now(101.0, 1001.0))
+    assert not any(isinstance(e, lc.Remind) for e in effects), "no silence: no reminder"
+    _, effects = lc.decide(life, travel, lc.Now(103.0, 1003.0))  # 3 s silent, back on the task
+    remind = _effect(effects, lc.Remind)
+    assert isinstance(remind, lc.Remind)
+    assert [m.robot for m in remind.members] == ["a-1"] and remind.task == TASK

@@ -113,11 +113,11 @@ def test_arguments_and_errors(capsys: pytest.CaptureFixture[str]) -> None:
         sim_command(args)
     code = main(["--cloud", "cloud-a", "--robots", "0", "--connect", "tcp/127.0.0.1:1"])
     assert code == 2
-    assert "error: robots must be at least 1" in capsys.readouterr().err
+    assert "robocloud: robots must be at least 1" in capsys.readouterr().err
     assert args.gateway is None
     code = main(["--cloud", "cloud-a", "--gateway", "a/b", "--connect", "tcp/127.0.0.1:1"])
     assert code == 2
-    assert "error: gateway 'a/b' cannot be used in a Zenoh key" in capsys.readouterr().err
+    assert "robocloud: gateway 'a/b' cannot be used in a Zenoh key" in capsys.readouterr().err
     for bad in ("0", "nan", "101"):
         code = main(["--cloud", "cloud-a", "--no-churn", "--recharge-below", bad,
                      "--connect", "tcp/127.0.0.1:1"])

@@ -1,9 +1,9 @@
 """One store suite over three backends: memory, a SQLite file, PostgreSQL.
 
 PostgreSQL tests run in a database made for this session
-(``robocloud_test_<hex>``, dropped at the end) on the server of
-``ROBOCLOUD_TEST_POSTGRES_URL`` (default: postgres on 127.0.0.1:5432, database
-``test``). If that server is down they fail, never skip: CI must run them.
+(``robocloud_test_<hex>``, dropped at the end) on the server tests/conftest.py
+finds or starts (``postgres_url``). Without one they fail, never skip: CI must
+run them.
 """
 
 from __future__ import annotations

@@ -5,7 +5,8 @@ second and on every change, answers commands on its cmd key, drives straight
 to a task's location and works there, and keeps its last finished task in
 ``last_task``. Faults for the tests: ``ack_delay`` (it takes a command but
 answers late), ``silent()`` / ``back()`` (no states and no answers, as a
-crashed robot; it comes back still holding its task).
+crashed robot; it comes back still holding its task), ``never_arrives`` (it
+drives in circles: its progress creeps towards one half and never gets there).
 """
 
 from __future__ import annotations
@@ -29,12 +30,14 @@ class ReadmeRobot:
         capabilities: dict[str, dict[str, Any]],
         speed: float = 10.0,
         ack_delay: float = 0.0,
+        never_arrives: bool = False,
     ) -> None:
         self.cloud, self.id = cloud, robot_id
         self.position = position
         self.capabilities = capabilities
         self.speed = speed
         self.ack_delay = ack_delay
+        self.never_arrives = never_arrives
         self.task: dict[str, Any] | None = None  # request_id, phase, progress, capabilities
         self.last_task: dict[str, Any] | None = None
         self.job: dict[str, Any] | None = None  # target, travel and work seconds, started
@@ -135,6 +138,9 @@ class ReadmeRobot:
             if job is None or task is None:
                 return
             elapsed = time.monotonic() - job["started"]
+            if self.never_arrives:  # lost: it reports progress, and never arrives
+                task["progress"] = 0.5 * elapsed / (elapsed + 1.0)
+                return
             total = job["travel"] + job["work"]
             f = min(1.0, elapsed / job["travel"]) if job["travel"] else 1.0
             (x0, y0), (x1, y1) = job["from"], job["target"]

@@ -1,8 +1,7 @@
 """Fixtures of the browser tests: the real system, Debian's chromium driven by Playwright.
 
-Playwright's own browser download cannot work here, so it launches the system
-chromium (``/usr/bin/chromium``; ``tests/wildfire/ensure_chromium.sh`` installs
-it). Without it the tests fail, never skip: CI must run them.
+Playwright launches the system's chromium (``tests/chromium_browser.py``):
+without it the tests fail with what to install, never skip: CI must run them.
 """
 
 from __future__ import annotations
@@ -14,7 +13,9 @@ from typing import Any
 import pytest
 from playwright.sync_api import expect
 from wildfire_browser import Console, open_page
-from wildfire_system import CHROMIUM, CHROMIUM_ARGS, System
+from wildfire_system import CHROMIUM_ARGS, System
+
+from chromium_browser import launch_chromium
 
 # The machine is shared: a page's checks wait up to 10 s rather than Playwright's 5.
 expect.set_options(timeout=10_000)
@@ -32,14 +33,11 @@ def system(tmp_path_factory: pytest.TempPathFactory) -> Iterator[System]:
 
 @pytest.fixture(scope="module")
 def browser() -> Iterator[Any]:
-    if not Path(CHROMIUM).exists():
-        pytest.fail(f"{CHROMIUM} is missing: run tests/wildfire/ensure_chromium.sh "
-                    "(make test does).", pytrace=False)
     from playwright.sync_api import sync_playwright
 
     playwright = sync_playwright().start()
     try:
-        the_browser = playwright.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+        the_browser = launch_chromium(playwright, CHROMIUM_ARGS)
         try:
             yield the_browser
         finally:

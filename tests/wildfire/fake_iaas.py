@@ -41,6 +41,7 @@ class FakeIaas:
         self.listing: list[dict[str, Any]] | None = None  # GET /v1/clouds
         self.robots_page: int | None = None  # GET /v1/robots in pages of this many (Link)
         self.clock = START
+        self.spec: dict[str, Any] | None = None  # GET /openapi.json (404 while None)
 
     @property
     def url(self) -> str:
@@ -73,6 +74,10 @@ class FakeIaas:
             return httpx.Response(200, json={"status": "ok", "cloud": self.cloud,
                                              "robots": len(self.robots), "store": "sqlite",
                                              "time_scale": 10.0})
+        if path == "/openapi.json":  # open, as the real IaaS has it
+            if self.spec is None:
+                return httpx.Response(404, json={"detail": "there is no such path."})
+            return httpx.Response(200, json=self.spec)
         if request.headers.get("authorization") != f"Bearer {KEY}":
             return httpx.Response(401, json={"detail": "the API key is not valid."})
         if path == "/v1/robots":

@@ -145,6 +145,14 @@ def test_a_robot_failure_is_alerted_with_the_new_time_and_cost(page: Any, system
     expect(banner).to_contain_text(f"robot {victim} failed", timeout=20_000)
     expect(page.locator("#history")).to_contain_text(f"robot {victim} replaced by",
                                                      timeout=20_000)
+    # The banner says what holds now: no longer "looking for a replacement" (it stayed
+    # 35 s after the replacement, issue 26), but who replaced it and whether it is on time.
+    expect(banner).to_contain_text(re.compile(
+        rf"robot {victim} failed \(.+\) and was replaced by [\w-]+; the request is still on "
+        r"time \(.+ of its .+ robot time\)"))
+    expect(banner).not_to_contain_text("looking for a replacement")
+    expect(banner).to_have_attribute("data-level", "info")
+    page.screenshot(path=str(screenshots / "banner-robot-replaced.png"))
     page.click("#alerts-button")
     expect(page.locator("#alert-list")).to_contain_text(f"robot {victim} replaced by")
     page.click("#alerts-button")
@@ -163,6 +171,12 @@ def test_a_robot_failure_is_alerted_with_the_new_time_and_cost(page: Any, system
     assert now["time"] == pytest.approx(max(a["offset"] + a["time"] for a in now["coalition"]))
     assert (page.inner_text("#stat-time"), page.inner_text("#stat-cost")) != (
         before["time"], before["cost"])
+    # Once the request is over, the replacement no longer holds: the banner lets it go.
+    if page.locator("#cancel").is_enabled():
+        page.get_by_role("button", name="Cancel a Request").click()
+        page.click("#cancel-confirm")
+    expect(state).to_have_attribute("data-state", re.compile("canceled|completed"))
+    expect(banner).not_to_contain_text(victim)
 
 
 def test_a_silent_wildfire_server_greys_the_page_until_it_is_back(page: Any, system: System,

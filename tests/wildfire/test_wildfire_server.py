@@ -540,12 +540,12 @@ def test_the_module_runs_as_a_command() -> None:
                            "http://127.0.0.1:1", "--timeout", "0"],
                           capture_output=True, text=True, timeout=60)
     assert done.returncode == 2
-    assert done.stderr.strip() == "robocloud wildfire: --timeout must be positive."
+    assert done.stderr.strip() == "robocloud: --timeout must be positive."
     done = subprocess.run([sys.executable, "-m", "robocloud.wildfire.command", "--iaas",
                            "http://127.0.0.1:1", "--iaas", "http://127.0.0.1:1/"],
                           capture_output=True, text=True, timeout=60)
     assert done.returncode == 2
-    assert done.stderr.strip() == "robocloud wildfire: an --iaas URL is given twice."
+    assert done.stderr.strip() == "robocloud: an --iaas URL is given twice."
     done = subprocess.run([sys.executable, "-m", "robocloud.wildfire.command", "--iaas",
                            "http://127.0.0.1:1", "--forest", "1,2"],
                           capture_output=True, text=True, timeout=60)
@@ -558,7 +558,7 @@ def test_the_module_runs_as_a_command() -> None:
                           env=env)
     assert done.returncode == 2
     assert done.stderr.strip() == (
-        "robocloud wildfire: no API key for the IaaS: set ROBOCLOUD_WILDFIRE_API_KEY "
+        "robocloud: no API key for the IaaS: set ROBOCLOUD_WILDFIRE_API_KEY "
         "(or pass --api-key) to a key the IaaS accepts.")
 
 

@@ -13,7 +13,7 @@ FINAL = re.compile(r"completed|rejected|canceled|failed")
 # Where forest point (x, y) is in the map's viewBox at zoom 1 (js/map.js AREA).
 TO_PAGE = """([x, y]) => {
   const svg = document.getElementById("map");
-  const point = new DOMPoint(84 + x / 2000 * 874, 14 + (2000 - y) / 2000 * 874);
+  const point = new DOMPoint(104 + x / 2000 * 874, 14 + (2000 - y) / 2000 * 874);
   const p = point.matrixTransform(svg.getScreenCTM());
   return [p.x, p.y];
 }"""
@@ -26,19 +26,30 @@ def map_point(page: Any, x: float, y: float) -> tuple[float, float]:
 
 
 def place_fire(page: Any, x: float, y: float) -> tuple[float, float]:
-    """Click the ground near (x, y); a robot under the pointer opens its card instead, so
-    step aside until the click lands on the ground. Returns where the fire is."""
-    for attempt in range(8):
-        tx, ty = x + 35 * attempt, y - 25 * attempt
-        page.mouse.click(*map_point(page, tx, ty))
-        if page.locator("#robot-card").is_visible():
-            page.click("#robot-card-close")
-            continue
-        expect(page.locator("#fire-marker")).to_be_visible()
-        placed = (float(page.input_value("#loc-x")), float(page.input_value("#loc-y")))
-        assert placed == (pytest.approx(tx, abs=15), pytest.approx(ty, abs=15))
-        return placed
-    raise AssertionError("every click near the fire landed on a robot")
+    """Click the map at (x, y): in "Place fire" mode a click places the fire, on a robot
+    too, and opens no robot's card. Returns where the fire is."""
+    page.mouse.click(*map_point(page, x, y))
+    expect(page.locator("#fire-marker")).to_be_visible()
+    assert page.locator("#robot-card").is_hidden(), "a click meant for the fire opened a card"
+    placed = (float(page.input_value("#loc-x")), float(page.input_value("#loc-y")))
+    assert placed == (pytest.approx(x, abs=15), pytest.approx(y, abs=15))
+    return placed
+
+
+def in_view(page: Any, selector: str) -> None:
+    """``selector`` is shown whole within the window, with no scrolling (an
+    IntersectionObserver's ratio 1: neither the window nor a scrolled box cuts it)."""
+    expect(page.locator(selector)).to_be_in_viewport(ratio=1)
+
+
+def far_fire(robots: list[dict[str, Any]], capability: str) -> tuple[float, float]:
+    """A point of the forest as far as can be from every idle robot with ``capability``:
+    the robots sent there are long on their way, so a test can cancel them in time."""
+    idle = [(r["x"], r["y"]) for r in robots
+            if r["status"] == "idle" and capability in r["capabilities"]]
+    grid = [(x * FOREST / 10, y * FOREST / 10) for x in range(11) for y in range(11)]
+    return max(grid, key=lambda p: min(((p[0] - x) ** 2 + (p[1] - y) ** 2 for x, y in idle),
+                                       default=0.0))
 
 
 def type_fire(page: Any, x: float, y: float) -> None:

@@ -23,7 +23,6 @@ import httpx
 from loopback_ports import free_port
 
 API_KEY = "wildfire-test-key"
-CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_ARGS = [
     "--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
     "--disable-background-networking", "--disable-component-update", "--disable-sync",

@@ -39,10 +39,15 @@ from typing import IO
 
 import httpx
 
+from robocloud.cli.logfile import RotatingLog
 from robocloud.sim.scenario import MAX_CLOUDS, cloud_names
 
 WILDFIRE = "wildfire"
 HEALTH_TIMEOUT_S = 30.0
+ROOT = Path(__file__).resolve().parents[3]
+NXT_BRICKS = ROOT / "examples" / "nxt" / "thesis-bricks.json"
+NXT_ROBOTS = ("nxt-tribot", "nxt-base-1", "nxt-base-2")
+NXT_OBSTACLES = ("10.3,10,0.15", "9.7,10,0.15")  # red, where the example request sends them
 
 
 class NotStarted(Exception):
@@ -78,18 +83,23 @@ class Part:
     process: subprocess.Popen[bytes] | None = None
     reported: bool = False
 
+    sink: RotatingLog | None = None  # the log file, opened at the first start
+
     def start(self) -> None:
-        with open(self.log, "ab") as log:
-            self.process = subprocess.Popen(
-                [sys.executable, "-m", "robocloud.cli.main", *self.argv],
-                stdin=subprocess.DEVNULL,
-                stdout=log,
-                stderr=subprocess.STDOUT,
-                env={**os.environ, **self.env},
-                # Its own session: Ctrl-C in the terminal reaches the demo only,
-                # which then stops every part in order.
-                start_new_session=True,
-            )
+        if self.sink is None:
+            self.sink = RotatingLog(self.log)
+        self.process = subprocess.Popen(
+            [sys.executable, "-m", "robocloud.cli.main", *self.argv],
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            env={**os.environ, **self.env},
+            # Its own session: Ctrl-C in the terminal reaches the demo only,
+            # which then stops every part in order.
+            start_new_session=True,
+        )
+        assert self.process.stdout is not None
+        self.sink.follow(self.process.stdout, f"log-{self.group}-{self.argv[0]}")
         self.reported = False
 
     @property
@@ -139,6 +149,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         help="the first cloud's Zenoh port; the next clouds count up",
     )
     parser.add_argument("--var", default="var", help="where stores and logs go (default var/)")
+    parser.add_argument(
+        "--nxt",
+        action="store_true",
+        help="add the thesis's three NXT robots to the first cloud: stand-in bricks "
+        f"({NXT_BRICKS.relative_to(ROOT)}) behind the NXT gateway",
+    )
     parser.add_argument(
         "--wildfire-port",
         type=int,
@@ -233,7 +249,33 @@ def plan(args: argparse.Namespace, key: str) -> tuple[list[Member], list[Part]]:
         env={"ROBOCLOUD_WILDFIRE_API_KEY": key},
         health=f"http://127.0.0.1:{args.wildfire_port}/",
     )
-    return members, [*iaas, *sims, wildfire]
+    nxt = nxt_parts(members[0], args, var) if args.nxt else []
+    return members, [*iaas, *sims, *nxt, wildfire]
+
+
+def nxt_parts(member: Member, args: argparse.Namespace, var: Path) -> list[Part]:
+    """The thesis's NXT robots (README "LEGO Mindstorms NXT"): three stand-in bricks, a gateway."""
+    bricks = str(NXT_BRICKS)
+    stand_ins = [
+        Part(
+            f"the stand-in NXT brick {robot}",
+            member.cloud,
+            [
+                "nxt-brick",
+                *("--bricks", bricks, "--robot", robot, "--speedup", f"{args.speedup:g}"),
+                *[arg for obstacle in NXT_OBSTACLES for arg in ("--obstacle", obstacle)],
+            ],
+            var / f"{robot}.log",
+        )
+        for robot in NXT_ROBOTS
+    ]
+    gateway = Part(
+        f"{member.cloud}'s NXT gateway",
+        member.cloud,
+        ["nxt", "--cloud", member.cloud, "--connect", member.zenoh, "--bricks", bricks],
+        var / f"{member.cloud}-nxt.log",
+    )
+    return [*stand_ins, gateway]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -399,6 +441,9 @@ def _stop_all(parts: list[Part]) -> None:
         except subprocess.TimeoutExpired:
             process.kill()
             process.wait()
+    for part in parts:
+        if part.sink is not None:
+            part.sink.close()
 
 
 def _banner(
@@ -447,6 +492,16 @@ def _banner(
             "  Restart it: "
             + ("press Enter here, or " if interactive else "")
             + f"kill -USR1 {os.getpid()}.",
+        ]
+    if args.nxt:
+        lines += [
+            "",
+            f"The thesis's NXT robots (stand-in bricks) are robots of {first.cloud}; a request "
+            "they serve:",
+            f"  curl -s {auth} -H 'Content-Type: application/json' \\",
+            '    -d \'{"location": [10, 10], "sensing": {"light": 1}, "actuating": {"grabber": 1}, '
+            '"max_robots": 3, "max_cost": 500, "max_time": 900, "priority": "time"}\' \\',
+            f"    {first.url}/v1/requests",
         ]
     lines += ["", "Ctrl-C stops everything."]
     return "\n".join(lines)

@@ -158,6 +158,37 @@ def add_iaas_arguments(parser: argparse.ArgumentParser) -> None:
         help="robot time per wall second, as the simulator's --speedup",
     )
     parser.add_argument(
+        "--overrun-ratio",
+        type=float,
+        default=0.5,
+        metavar="R",
+        help="the watchdog: a robot may run past its expected time (travel and work) by the "
+        "larger of R times it and --overrun-min; then it is stopped and replaced (default 0.5)",
+    )
+    parser.add_argument(
+        "--overrun-min",
+        type=float,
+        default=30.0,
+        metavar="SECONDS",
+        help="the watchdog's least tolerance, robot seconds (default 30)",
+    )
+    parser.add_argument(
+        "--stall-after",
+        type=float,
+        default=30.0,
+        metavar="SECONDS",
+        help="a robot that reports no progress this long while it travels or works has "
+        "stalled: stopped and replaced (default 30)",
+    )
+    parser.add_argument(
+        "--set-aside-for",
+        type=float,
+        default=300.0,
+        metavar="SECONDS",
+        help="a robot that gives no ack, stalls or overruns twice in a row is not chosen for "
+        "this long (default 300)",
+    )
+    parser.add_argument(
         "--lease-max",
         type=float,
         default=30.0,
@@ -256,10 +287,17 @@ def iaas_settings(args: argparse.Namespace) -> Settings:
         "--time-scale",
         "--selection-budget",
         "--busy-after",
+        "--overrun-min",
+        "--stall-after",
+        "--set-aside-for",
     ):
         value = getattr(args, flag.removeprefix("--").replace("-", "_"))
         if not value > 0:  # also refuses nan
             raise InvalidInput(f"{flag} must be more than 0, not {value}.", flag)
+    if not 0 <= args.overrun_ratio <= 100:  # also refuses nan
+        raise InvalidInput(
+            f"--overrun-ratio must be 0 to 100, not {args.overrun_ratio}.", "--overrun-ratio"
+        )
     if not 1 <= args.max_waiting <= 1_000_000:
         raise InvalidInput(
             f"--max-waiting must be 1 to 1000000, not {args.max_waiting}.", "--max-waiting"
@@ -305,6 +343,10 @@ def iaas_settings(args: argparse.Namespace) -> Settings:
         selection_workers=args.selection_workers,
         busy_after=args.busy_after,
         max_waiting=args.max_waiting,
+        overrun_ratio=args.overrun_ratio,
+        overrun_min=args.overrun_min,
+        stall_after=args.stall_after,
+        set_aside_for=args.set_aside_for,
         overlay_security=overlay_security,
     )
     return settings

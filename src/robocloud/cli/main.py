@@ -10,6 +10,8 @@
     robocloud wildfire --iaas URL ...     (robocloud.wildfire.command)
     robocloud robot-check --connect ENDPOINT --cloud NAME --robot ID   (robocloud.cli.robot_check)
     robocloud vda5050 --cloud NAME --connect ENDPOINT --mqtt HOST:PORT (robocloud.gateways.vda5050)
+    robocloud nxt --cloud NAME --connect ENDPOINT --bricks FILE     (robocloud.gateways.nxt)
+    robocloud nxt-brick --bricks FILE --robot ID                    (a stand-in NXT brick)
 
 ``select`` reads docs/model.md's input (a file, or ``-`` for stdin) and
 prints its output as one JSON document on stdout; its columnar reader
@@ -18,7 +20,7 @@ few hundred MB, ``--timings`` says where the time went. ``scenario wildfire``
 writes the thesis's illustrative scenario (section 5.4) in that input shape.
 
 Every command checks all its arguments before it opens anything (a file, a
-port, a database, a Zenoh session). Exit codes, mapped in :func:`exit_code`
+port, a database, a Zenoh session). Exit codes, mapped in ``robocloud.cli.exits``
 only:
 
 - 0: done, also when no coalition is feasible (the output says why), and a
@@ -41,78 +43,38 @@ import contextlib
 import json
 import logging
 import math
-import os
 import sys
 import time
-import traceback
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from robocloud import logs
+from robocloud.cli.exits import (  # noqa: F401 (exit codes: re-exported)
+    EXIT_FAILED,
+    EXIT_INTERRUPTED,
+    EXIT_INVALID,
+    EXIT_OK,
+    exit_code,
+    run,
+    say,
+)
 from robocloud.cli.iaas_command import add_iaas_arguments, iaas_command
 from robocloud.cli.select_input import (  # noqa: F401 (parse_select_input: re-exported)
     check_unique_ids,
     parse_select_input,
 )
-from robocloud.errors import InvalidInput, NotFound, RoboCloudError
+from robocloud.errors import InvalidInput, NotFound
 
 if TYPE_CHECKING:
     from robocloud.domain import RobotLike
 
-EXIT_OK = 0
-EXIT_FAILED = 1
-EXIT_INVALID = 2
-EXIT_INTERRUPTED = 130
-
 STDIN = "-"
 
-Command = Callable[[argparse.Namespace], int]
-
-
-def exit_code(error: RoboCloudError) -> int:
-    """The one place where an error becomes an exit code."""
-    if isinstance(error, InvalidInput | NotFound):
-        return EXIT_INVALID
-    return EXIT_FAILED
 
 
 def main(argv: list[str] | None = None) -> int:
-    logs.install()  # every log line of every command escapes control characters
     args = build_parser().parse_args(argv)
-    command: Command = args.command
-    # getattr: a subcommand added later may have neither.
-    debug = getattr(args, "log_level", "") == "debug"
-    try:
-        return command(args)
-    except RoboCloudError as error:
-        if debug:
-            traceback.print_exc()
-        say(error.message)
-        return exit_code(error)
-    except KeyboardInterrupt:
-        return EXIT_INTERRUPTED
-    except BrokenPipeError:
-        # The reader went away (``| head``); keep Python from complaining at exit.
-        devnull = os.open(os.devnull, os.O_WRONLY)
-        os.dup2(devnull, sys.stdout.fileno())
-        return EXIT_FAILED
-    except Exception as error:  # a failure nobody foresaw: still one sentence
-        if debug:
-            traceback.print_exc()
-        first = (str(error).strip().splitlines() or [""])[0].rstrip(".")
-        name = getattr(args, "command_name", "the command")
-        say(
-            f"{name} stopped on an unexpected {type(error).__name__}"
-            f"{': ' + first if first else ''}; run it again with --log-level debug "
-            "to see where."
-        )
-        return EXIT_FAILED
-
-
-def say(message: str) -> None:
-    """The one line on stderr an error becomes, whatever the message holds."""
-    print(f"robocloud: {' '.join(message.split())}", file=sys.stderr)
+    return run(args.command, args, getattr(args, "command_name", "the command"))
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -227,6 +189,24 @@ def build_parser() -> argparse.ArgumentParser:
     )
     add_vda5050_arguments(gateway)
     gateway.set_defaults(command=vda5050_command, command_name="vda5050")
+
+    from robocloud.gateways.nxt.command import add_nxt_arguments, nxt_command
+    from robocloud.gateways.nxt.standin import add_standin_arguments, standin_command
+
+    nxt = commands.add_parser(
+        "nxt",
+        help="make LEGO Mindstorms NXT bricks (Bluetooth direct commands) robots of a cloud",
+        description="Run the NXT gateway until interrupted.",
+    )
+    add_nxt_arguments(nxt)
+    nxt.set_defaults(command=nxt_command, command_name="nxt")
+    nxt_brick = commands.add_parser(
+        "nxt-brick",
+        help="a stand-in NXT brick on a TCP socket, for tests and users without one",
+        description="Play one brick of a bricks file: direct commands, simulated motors.",
+    )
+    add_standin_arguments(nxt_brick)
+    nxt_brick.set_defaults(command=standin_command, command_name="nxt-brick")
     return parser
 
 

@@ -15,6 +15,16 @@ REL_TOL = 1e-9
 ABS_TOL = 1e-6
 
 
+def margin(a: float) -> float:
+    """The tolerance of one value: how far past ``a`` a value still counts as ``a``."""
+    return max(ABS_TOL, REL_TOL * abs(a))
+
+
+def margin_array(a: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """``margin`` of each value."""
+    return np.asarray(np.maximum(ABS_TOL, REL_TOL * np.abs(a)))
+
+
 def tolerance(a: float, b: float) -> float:
     """The largest difference at which ``a`` and ``b`` still count as equal."""
     return max(ABS_TOL, REL_TOL * max(abs(a), abs(b)))

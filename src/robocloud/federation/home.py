@@ -28,21 +28,18 @@ Commands that touch another origin's loan are refused and logged as warnings.
 
 from __future__ import annotations
 
-import asyncio
-import contextlib
 import json
 import logging
 import threading
 import time
-from collections import defaultdict
 from collections.abc import Callable, Iterable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from datetime import datetime, timedelta
-from typing import Protocol
 
 from robocloud.domain import Robot, is_final
-from robocloud.errors import RoboCloudError, Unavailable
+from robocloud.errors import RoboCloudError
+from robocloud.federation.capabilities import Announced
 from robocloud.federation.lending import (
     LEND_MIN_BATTERY,
     LEND_SHARE,
@@ -70,10 +67,8 @@ from robocloud.federation.messages import (
     StatusQuery,
     StatusReply,
 )
-from robocloud.federation.overlay import Overlay
 from robocloud.fleet.link import RobotLink
 from robocloud.fleet.messages import Ack, State
-from robocloud.selection.columns import OFFLINE
 from robocloud.storage import Loan, RequestStore
 from robocloud.storage.rules import utc_now
 
@@ -81,33 +76,6 @@ log = logging.getLogger(__name__)
 
 LEASE_MAX = 30.0  # seconds: the longest lease this home grants
 ORIGIN_DEADLINE = 60.0  # seconds an origin may stay away once its robot is idle or done
-# A loan this young is not judged by what its origin says: the origin may not
-# have recorded the robot yet (it confirms, then starts following it).
-_SETTLING = 10.0
-# Requests asked about in one status query: the origin reads each from its
-# store, and must answer well within the overlay's timeout, or it would pass
-# for unreachable.
-_STATUS_BATCH = 100
-
-
-def reconcile_period(origin_deadline: float) -> float:
-    """How often ``reconcile`` runs: every 5 s, more often under a short deadline (tests)."""
-    return min(5.0, max(0.2, origin_deadline / 4))
-
-
-class OriginStatus(Protocol):
-    """The origin side: what this cloud's service says of, and learns about, its own requests."""
-
-    def coalition_robots(self, request_id: str) -> list[str]:
-        """The robots working for the request now."""
-        ...
-
-    def loan_ended(self, request_id: str, robot: str, home: str, why: str) -> None:
-        """``home`` ended the loan of ``robot`` to the request on its own (this cloud was away).
-
-        Called on a worker thread, at least once per such loan.
-        """
-        ...
 
 
 @dataclass(frozen=True)
@@ -140,7 +108,8 @@ def _stray_commands(reservation: Reservation) -> str | None:
     return None
 
 
-def _working(state: State | None, request_id: str) -> bool:
+def working_for(state: State | None, request_id: str) -> bool:
+    """Whether the robot reports working on the request, online."""
     return (
         state is not None
         and state.status != "offline"
@@ -163,31 +132,29 @@ class Home:
         origin_deadline: float = ORIGIN_DEADLINE,
         lend_share: float = LEND_SHARE,
         reserve_rate: float = RESERVE_RATE,
-        clock: Callable[[], datetime] = utc_now,
+        coalition_of: Callable[[str], list[str]] = lambda request_id: [],
         monotonic: Callable[[], float] = time.monotonic,
+        clock: Callable[[], datetime] = utc_now,
     ) -> None:
         self.cloud = cloud
         self.store = store
         self.link = link
         self.trusted = set(trusted) if trusted else None  # None: every cloud
         self.api = api
+        # The capability names this cloud's robots have announced (its CloudInfo says them).
+        self.announced = Announced()
         self.lease_max = lease_max
         self.origin_deadline = origin_deadline
         self.lend_share = lend_share
         self.reserve_rate = ReserveRate(monotonic, reserve_rate, RESERVE_BURST)
         self._undispatched = Undispatched(cloud, lease_max, monotonic)
-        self.origin: OriginStatus | None = None
-        self.overlay: Overlay | None = None
-        # The homes this cloud borrowed from (robocloud.federation.view.FederationView.lenders).
-        self.lenders: Callable[[], Iterable[str]] = lambda: ()
+        # The robots working for one of this cloud's requests now (the IaaS's
+        # RobotRoutes): what another cloud that lent some is told.
+        self.coalition_of = coalition_of
         self._clock = clock
-        self._monotonic = monotonic
-        self._started = monotonic()
         self._lock = threading.Lock()
         self._lent: dict[str, _Lent] = {}
         self._bound_refusals: dict[str, int] = {}  # origin -> reserves refused by a bound
-        self._away_since: dict[str, float] = {}  # origin -> when it first did not answer
-        self._worked_at: dict[str, float] = {}  # robot -> when last seen working for its loan
         self._dispatched: set[tuple[str, str]] = set()  # (robot, request): accepted its dispatch
         self._robot_json: dict[str, tuple[Robot, bytes]] = {}  # id -> (the Robot, its JSON)
         # Commands that came with a reservation, sent to their robots at once.
@@ -216,8 +183,14 @@ class Home:
         held = self.store.reservations()
         idle = sum(r.status == "idle" and r.id not in held for r in robots)
         offline = sum(r.status == "offline" for r in robots)
+        self.announced.learn_robots(robots)
         return CloudInfo(
-            cloud=self.cloud, robots=len(robots), idle=idle, offline=offline, api=self.api
+            cloud=self.cloud,
+            robots=len(robots),
+            idle=idle,
+            offline=offline,
+            api=self.api,
+            capabilities=self.announced.names(),
         )
 
     def idle_robots(self, query: IdleQuery) -> bytes:
@@ -285,7 +258,7 @@ class Home:
             if record is None:
                 out.append(RequestStatus(request_id=request_id, known=False))
                 continue
-            robots = self.origin.coalition_robots(request_id) if self.origin else []
+            robots = self.coalition_of(request_id)
             out.append(
                 RequestStatus(
                     request_id=request_id, known=True, final=is_final(record.state), robots=robots
@@ -337,7 +310,7 @@ class Home:
                 for r in robots
                 if (r, request_id) not in self._dispatched
                 and not self._firm(r, origin, request_id)
-                and not _working(states.get(r), request_id)  # (dispatched before a restart)
+                and not working_for(states.get(r), request_id)  # (dispatched before a restart)
             ]
             if waiting:
                 error = (
@@ -364,7 +337,7 @@ class Home:
             return Done(ok=False, error=refusal)
         why = release.why or f"released by {origin}"
         ended = self.store.end_loans(origin, release.request_id, release.robots, why)
-        self._forget(ended)
+        self.forget(ended)
         if not ended:
             return self._nothing_lent(origin, "release", release)
         return Done()
@@ -405,7 +378,7 @@ class Home:
         for robot in robots:
             self.link.cancel(robot, request_id)
         why = release.why or f"canceled by {origin}"
-        self._forget(self.store.end_loans(origin, request_id, robots, why))
+        self.forget(self.store.end_loans(origin, request_id, robots, why))
         return Done()
 
     def loans(self, origin: str, query: LoanQuery) -> LoanReply:
@@ -526,7 +499,7 @@ class Home:
         """
         states = self.link.states()
         for robot in robots:
-            if self._holder(robot) is None and _working(states.get(robot), request_id):
+            if self._holder(robot) is None and working_for(states.get(robot), request_id):
                 log.info("stopping %s, which still works for request %s", robot, request_id)
                 self.link.cancel(robot, request_id)
 
@@ -620,10 +593,10 @@ class Home:
                         expires_at = max(expires_at, known.expires_at)
                 self._lent[robot] = _Lent(origin, request_id, expires_at, now, True, lease is None)
 
-    def _forget(self, ended: Iterable[Loan]) -> None:
+    def forget(self, ended: Iterable[Loan]) -> None:
+        """Loans the store just ended: this home's memory of them follows."""
         for loan in ended:
             self._remember(loan)
-            self._worked_at.pop(loan.robot, None)
             with self._lock:
                 self._dispatched.discard((loan.robot, loan.request_id))
 
@@ -637,160 +610,6 @@ class Home:
             return
         why = "its task is done" if task.phase == "done" else f"robot {state.id} failed"
         try:
-            self._forget(self.store.end_loans(holder[0], task.request_id, [state.id], why))
+            self.forget(self.store.end_loans(holder[0], task.request_id, [state.id], why))
         except RoboCloudError:
             log.exception("could not end the loan of %s", state.id)
-
-    # -- reconciliation ------------------------------------------------------------
-
-    def reconcile(self) -> None:
-        """Loans whose lease lapsed, origins asked about their loans, this cloud's own loans."""
-        self._forget(self.store.lapse_loans())
-        if self.overlay is None:
-            return
-        self._ask_origins(self.overlay)
-        self._ask_lenders(self.overlay)
-
-    def _ask_origins(self, overlay: Overlay) -> None:
-        """Ask each origin about its requests; end the loans it no longer uses, or waited out."""
-        now = self._monotonic()
-        loans = self.store.loans()
-        states: dict[str, State] = {}
-        silent: set[str] = set()
-        if loans:  # most clouds lend nothing: no need to visit 50,000 robots every 5 s
-            states = self.link.states()
-            columns = self.link.columns()
-            silent = set(columns.id_array[columns.status == OFFLINE].tolist())
-        by_origin: dict[str, list[Loan]] = defaultdict(list)
-        for loan in loans:
-            if loan.robot not in silent and _working(states.get(loan.robot), loan.request_id):
-                self._worked_at[loan.robot] = now
-            # Leases not yet dispatched lapse by themselves.
-            if loan.expires_at is None:
-                by_origin[loan.origin].append(loan)
-        for origin in sorted(set(self._away_since) - set(by_origin)):
-            self._probe(overlay, origin)
-        for origin, loans in by_origin.items():
-            request_ids = sorted({loan.request_id for loan in loans})
-            try:
-                statuses: dict[str, RequestStatus] = {}
-                for start in range(0, len(request_ids), _STATUS_BATCH):
-                    query = StatusQuery(
-                        home=self.cloud, request_ids=request_ids[start : start + _STATUS_BATCH]
-                    )
-                    for status in overlay.status(origin, query).requests:
-                        statuses[status.request_id] = status
-            except RoboCloudError:
-                self._away(origin, loans, now)
-                continue
-            self._back(origin)
-            self._apply(origin, loans, statuses)
-
-    def _away(self, origin: str, loans: list[Loan], now: float) -> None:
-        """The origin did not answer: end the loans idle for longer than the deadline."""
-        since = self._away_since.setdefault(origin, now)
-        if since == now:
-            log.warning("%s does not answer; its %d loans wait for it", origin, len(loans))
-        for loan in loans:
-            idle_since = max(since, self._worked_at.get(loan.robot, self._started))
-            if now - idle_since < self.origin_deadline:
-                continue
-            why = (
-                f"{origin} was unreachable for {self.origin_deadline:g} s "
-                f"while robot {loan.robot} was idle or done"
-            )
-            self.link.cancel(loan.robot, loan.request_id)  # harmless when it has no task
-            ended = self.store.end_loans(
-                origin, loan.request_id, [loan.robot], why, tell_origin=True
-            )
-            self._forget(ended)
-            if ended:
-                log.warning(
-                    "ended the loan of %s to %s's request %s: %s",
-                    loan.robot,
-                    origin,
-                    loan.request_id,
-                    why,
-                )
-
-    def _probe(self, overlay: Overlay, origin: str) -> None:
-        """An origin away with no loan left here: is it back, to be told of its ended loans?"""
-        untold = self.store.untold_loans(origin)
-        if not untold:
-            self._away_since.pop(origin, None)
-            return
-        request_ids = sorted({loan.request_id for loan in untold})[:MAX_ITEMS]
-        try:
-            overlay.status(origin, StatusQuery(home=self.cloud, request_ids=request_ids))
-        except RoboCloudError:
-            return
-        self._back(origin)
-
-    def _back(self, origin: str) -> None:
-        if self._away_since.pop(origin, None) is None:
-            return
-        untold = self.store.untold_loans(origin)
-        if untold:
-            log.warning(
-                "%s is back; %d of its loans ended while it was away (%s); it is told when it asks",
-                origin,
-                len(untold),
-                ", ".join(sorted({loan.robot for loan in untold})),
-            )
-        else:
-            log.info("%s is back", origin)
-
-    def _apply(self, origin: str, loans: list[Loan], statuses: dict[str, RequestStatus]) -> None:
-        """End the loans the origin no longer uses (not the youngest: it may not know them yet)."""
-        settled = self._clock().timestamp() - _SETTLING
-        by_request: dict[str, list[str]] = defaultdict(list)
-        for loan in loans:
-            if loan.updated_at.timestamp() < settled:
-                by_request[loan.request_id].append(loan.robot)
-        for request_id, robots in by_request.items():
-            status = statuses.get(request_id)
-            if status is None:
-                continue  # not answered: ask again next time
-            if not status.known or status.final:
-                for robot in robots:
-                    self.link.cancel(robot, request_id)
-                why = f"{origin} says request {request_id} is over"
-                self._forget(self.store.end_loans(origin, request_id, robots, why))
-                continue
-            unwanted = [r for r in robots if r not in status.robots]
-            if unwanted:
-                why = f"{origin} no longer uses them"
-                self._forget(self.store.end_loans(origin, request_id, unwanted, why))
-
-    def _ask_lenders(self, overlay: Overlay) -> None:
-        """This cloud as the origin: learn which of its loans the homes ended while it was away."""
-        for home in sorted(set(self.lenders()) - {self.cloud}):
-            try:
-                reply = overlay.loans(home, LoanQuery())
-            except RoboCloudError:
-                continue
-            if not reply.ended:
-                continue
-            for notice in reply.ended:
-                log.warning(
-                    "%s ended the loan of %s to request %s: %s",
-                    home,
-                    notice.robot,
-                    notice.request_id,
-                    notice.why,
-                )
-                if self.origin is not None:
-                    self.origin.loan_ended(notice.request_id, notice.robot, home, notice.why)
-            # Not told back: the home tells again next time; taking it in twice is harmless.
-            with contextlib.suppress(RoboCloudError):
-                overlay.loans(home, LoanQuery(told=[notice.loan for notice in reply.ended]))
-
-    async def reconcile_forever(self, every: float = 5.0) -> None:
-        while True:
-            try:
-                await asyncio.to_thread(self.reconcile)
-            except Unavailable as error:
-                log.warning("reconciliation waits for the store: %s", error)
-            except Exception:
-                log.exception("reconciliation failed")
-            await asyncio.sleep(every)

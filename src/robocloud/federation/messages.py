@@ -66,6 +66,11 @@ class CloudInfo(BaseModel):
     idle: int = Field(ge=0, description="of those, idle and not reserved")
     offline: int = Field(0, ge=0, description="of those, offline or silent")
     api: str | None = Field(None, description="the cloud's HTTP API, if it says")
+    capabilities: list[Name] = Field(
+        default_factory=list,
+        max_length=MAX_ITEMS,
+        description="every capability name its robots have announced since its IaaS started",
+    )
 
 
 class IdleQuery(BaseModel):

@@ -5,7 +5,7 @@
     Overlay                 the seam the IaaS uses (a Protocol)
     ├── ZenohOverlay        the real one, on the IaaS's Zenoh router session
     └── MemoryOverlay       in memory, for fast tests (robocloud.federation.memory)
-    HomeDesk                what a cloud answers of its robots (robocloud.federation.home.Home)
+    HomeDesk                what a cloud answers about its own robots (federation.home.Home)
 
 The IaaS gives the overlay a ``HomeDesk``: what its own cloud answers when
 other clouds ask (its idle robots, loans, dispatch to its robots). A command

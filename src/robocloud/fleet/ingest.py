@@ -50,6 +50,7 @@ class WireTask(msgspec.Struct, frozen=True, gc=False):
     phase: Literal["travel", "work", "done", "failed"]
     progress: Annotated[float, Meta(ge=0.0, le=1.0)]
     capabilities: list[_Name]
+    reason: Annotated[str, Meta(max_length=300)] | None = None  # protocol 1.1
 
 
 class WireState(msgspec.Struct, gc=False):
@@ -222,7 +223,9 @@ class StateReader:
 
     def _slow(self, payload: bytes) -> State | Refusal:
         try:
-            return State.model_validate_json(payload)
+            # Strict, as msgspec and the schemas are: a number sent as a string
+            # ("80") is refused, not taken (docs/protocol.md: the schemas win).
+            return State.model_validate_json(payload, strict=True)
         except pydantic.ValidationError as error:
             described = describe_validation_errors(error.errors())
             return Refusal(robot_named(payload), described.field or "state", described.message)
@@ -296,6 +299,7 @@ class StateReader:
                 "phase": wire.phase,
                 "progress": wire.progress,
                 "capabilities": wire.capabilities,
+                "reason": wire.reason,
             },
             _TASK_FIELDS,
         )
@@ -317,4 +321,6 @@ def encode_batch(states: list[WireState | dict[str, Any]]) -> bytes:
 def wire_task(task: TaskProgress | None) -> WireTask | None:
     if task is None:
         return None
-    return WireTask(task.request_id, task.phase, task.progress, list(task.capabilities))
+    return WireTask(
+        task.request_id, task.phase, task.progress, list(task.capabilities), task.reason
+    )

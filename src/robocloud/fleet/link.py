@@ -40,7 +40,6 @@ from robocloud.selection.columns import FleetColumns
 logger = logging.getLogger(__name__)
 
 StateListener = Callable[[State], None]
-NO_ANSWER = "robot {robot} did not answer."
 FORGET_AFTER = 600.0  # seconds of silence after which a robot is forgotten
 MAX_FLEET = 100_000  # robots one link follows at most
 
@@ -68,7 +67,7 @@ class RobotLink(Protocol):
         ...
 
     def ages(self) -> dict[str, float]:
-        """Seconds since each robot's latest state, by id."""
+        """Seconds since each robot last said something new (its sent_at went forward), by id."""
         ...
 
     def assign(self, robot_id: str, command: Assign) -> Ack:
@@ -112,6 +111,10 @@ class LatestStates:
         self._unavailable_said = -1e9
         self._states: dict[str, State] = {}
         self._received: dict[str, float] = {}
+        # When each robot last said something new: a state whose sent_at went
+        # forward. A gateway repeats a silent robot's last state (a new seq, the
+        # same sent_at): the robot's listed age grows, though its states come.
+        self._said: dict[str, float] = {}
         self._listeners: list[StateListener] = []
         # The Robot of each held state, made when first asked for and kept
         # while the robot's states say the same (see ``robots``).
@@ -202,6 +205,8 @@ class LatestStates:
                 self._listed = None  # back from silence: listed online again
         self._states[state.id] = state
         self._received[state.id] = now
+        if held is None or state.sent_at > held.sent_at:
+            self._said[state.id] = now
         self._columns.put(state, now, changed)
         return True
 
@@ -210,7 +215,7 @@ class LatestStates:
         self._pruned_at = now
         gone = [rid for rid, at in self._received.items() if now - at > self.forget_after]
         for rid in gone:
-            del self._states[rid], self._received[rid]
+            del self._states[rid], self._received[rid], self._said[rid]
             self._robots.pop(rid, None)
         if gone:
             self._columns = StateColumns.of(self._states, self._received)
@@ -235,7 +240,7 @@ class LatestStates:
     def ages(self) -> dict[str, float]:
         now = self.clock()
         with self._lock:
-            return {rid: now - at for rid, at in self._received.items()}
+            return {rid: now - at for rid, at in self._said.items()}
 
     def columns(self) -> FleetColumns:
         """The robots of ``robots()`` as columns, without making a Robot of any."""
@@ -400,10 +405,9 @@ class ZenohRobotLink:
         )
         for reply in replies:
             return self._ack(robot_id, command.request_id, reply)
-        return Ack.refuse(robot_id, command.request_id, NO_ANSWER.format(robot=robot_id))
+        return Ack.no_answer(robot_id, command.request_id, self._timeout)
 
-    @staticmethod
-    def _ack(robot_id: str, request_id: str, reply: zenoh.Reply) -> Ack:
+    def _ack(self, robot_id: str, request_id: str, reply: zenoh.Reply) -> Ack:
         sample = reply.ok
         if sample is None:
             error = reply.err
@@ -411,7 +415,7 @@ class ZenohRobotLink:
             if detail == "Timeout":
                 # What Zenoh itself replies when the timeout passes with the
                 # query still open at the robot.
-                return Ack.refuse(robot_id, request_id, NO_ANSWER.format(robot=robot_id))
+                return Ack.no_answer(robot_id, request_id, self._timeout)
             return Ack.refuse(robot_id, request_id, f"robot {robot_id} answered an error: {detail}")
         try:
             return Ack.model_validate_json(sample.payload.to_bytes())

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from robocloud.domain import Robot
 from robocloud.errors import NotFound
 from robocloud.fleet import behaviour
-from robocloud.fleet.link import NO_ANSWER, LatestStates, StateListener
+from robocloud.fleet.link import LatestStates, StateListener
 from robocloud.fleet.messages import Ack, Assign, Cancel, Phase, State, TaskProgress
 from robocloud.selection.columns import FleetColumns
 
@@ -78,7 +78,7 @@ class MemoryRobotLink:
         self.commands.append((robot_id, command))
         state = self._answering(robot_id)
         if state is None:
-            return Ack.refuse(robot_id, command.request_id, NO_ANSWER.format(robot=robot_id))
+            return Ack.no_answer(robot_id, command.request_id)
         job = self._jobs.get(robot_id)
         refusal = behaviour.refuse_assign(
             robot_id,
@@ -105,7 +105,7 @@ class MemoryRobotLink:
         self.commands.append((robot_id, Cancel(request_id=request_id)))
         state = self._answering(robot_id)
         if state is None:
-            return Ack.refuse(robot_id, request_id, NO_ANSWER.format(robot=robot_id))
+            return Ack.no_answer(robot_id, request_id)
         job = self._jobs.get(robot_id)
         refusal = behaviour.refuse_cancel(
             robot_id, job.command.request_id if job else None, request_id

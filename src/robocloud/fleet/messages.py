@@ -211,6 +211,21 @@ class Ack(BaseModel):
     def refuse(cls, robot: str, request_id: str | None, error: str) -> Ack:
         return cls(ok=False, robot=robot, request_id=request_id, error=error)
 
+    @classmethod
+    def no_answer(cls, robot: str, request_id: str | None, timeout: float | None = None) -> Ack:
+        """What stands for the ack of a robot that did not answer within the deadline."""
+        within = f" ({timeout:g} s)" if timeout is not None else ""
+        return cls.refuse(robot, request_id, NO_ANSWER.format(robot=robot) + f"{within}.")
+
+    @property
+    def unanswered(self) -> bool:
+        """Whether this stands for no answer at all (``no_answer``), not a refusal."""
+        return not self.ok and (self.error or "").startswith(NO_ANSWER.format(robot=self.robot))
+
+
+# The sentence of an ack that never came (``Ack.no_answer``); a late ack is dropped.
+NO_ANSWER = "robot {robot} did not answer within the ack deadline"
+
 
 # A gateway's batch (robocloud/<cloud>/fleets/<gateway>/states): a JSON array
 # of States of the robots it fronts, at most this many in one message.

@@ -22,7 +22,7 @@ import logging
 import random
 import time
 from collections import deque
-from collections.abc import Awaitable, Callable, Iterable, Sequence
+from collections.abc import Awaitable, Callable, Sequence
 from contextlib import AbstractAsyncContextManager
 from dataclasses import dataclass, field
 from typing import Any, Protocol, TypeVar
@@ -34,6 +34,7 @@ from robocloud.fleet.messages import Ack
 from robocloud.fleet.messages import Assign as AssignCommand
 from robocloud.iaas import lifecycle as lc
 from robocloud.iaas.metrics import IaasMetrics
+from robocloud.iaas.routes import RobotRoutes
 from robocloud.selection.columns import Candidates
 from robocloud.selection.problem import CoalitionProblem
 from robocloud.selection.result import SelectionResult
@@ -63,12 +64,8 @@ class Shell:
     rules: lc.Rules
     blocking: Callable[..., Awaitable[Any]]  # a blocking call on the IaaS's I/O threads
     store_write: Callable[..., Awaitable[Any]]  # a store write, made in the next turn
-    follow: Callable[[str, lc.Pairs], None]
-    unfollow: Callable[[str, lc.Pairs], None]
     publish: Callable[[RequestRecord], None]
-    held: Callable[[], Iterable[str]]  # robots other requests follow or claim right now
-    claim: Callable[[str, Iterable[str]], None]  # chosen robots, until they are reserved
-    unclaim: Callable[[str, Iterable[str]], None]
+    routes: RobotRoutes  # which robot follows or is claimed by which request
     wall: Callable[[], float] = time.time
     mono: Callable[[], float] = time.monotonic
     metrics: IaasMetrics = field(default_factory=IaasMetrics)
@@ -225,7 +222,10 @@ class RequestActor:
                 self._operate(lambda: self._reserve(robots, commands), "reservation")
             case lc.Assign(members, task):
                 self._operate(lambda: self._assign(members, task), "dispatch")
+            case lc.Remind(members, task):
+                self._operate(lambda: self._remind(members, task), "reminder")
             case lc.StopRobots(robots):
+                shell.metrics.stops.labels("request").inc(len(robots))
                 self._operate(lambda: self._stop(robots), "stop")
             case lc.Confirm(robots):
                 here = shell.view.cloud
@@ -251,9 +251,27 @@ class RequestActor:
             case lc.ReleaseAll():
                 await self._write(shell.store.release, rid, None)
             case lc.Follow(robots):
-                shell.follow(rid, robots)
+                for robot, cloud in robots:
+                    if shell.routes.follow(rid, robot):
+                        shell.view.watch(robot, cloud)
             case lc.Unfollow(robots):
-                shell.unfollow(rid, robots)
+                for robot, cloud in robots:
+                    if shell.routes.unfollow(rid, robot):
+                        shell.view.unwatch(robot, cloud)
+            case lc.Unclaim(robots):
+                shell.routes.unclaim(rid, (robot for robot, _ in robots))
+            case lc.RobotFailed(robot, _, cause, why):
+                shell.metrics.robot_failures.labels(cause).inc()
+                if cause in lc.STRIKING:
+                    aside = shell.routes.strike(robot, why)
+                    if aside is not None:
+                        shell.metrics.set_aside.inc()
+                        log.warning(
+                            "robot %s is set aside for %.0f s: %s",
+                            robot, shell.routes.cooldown, aside.why,
+                        )
+            case lc.RobotDone(robot):
+                shell.routes.behaved(robot)
 
     def _operate(self, work: Callable[[], Awaitable[lc.Event | None]], what: str) -> None:
         """Run ``work()`` as an operation of this actor; its result comes back as an event.
@@ -391,7 +409,7 @@ class RequestActor:
         # together picked the same robots (measured at 100 requests/s: 1,132
         # reservations found a robot taken, for 600 requests).
         async with shell.selection_turn():
-            left_out = exclude | set(shell.held())
+            left_out = exclude | shell.routes.held()
             # On the loop when no read of the store is due: a thread's hand-off
             # cost more than the filter (measured at 200 requests/s offered,
             # --busy-after 0.2: 195/s accepted twice, p99 177 and 170 ms, against
@@ -406,7 +424,7 @@ class RequestActor:
             shell.metrics.selection_seconds.observe(shell.mono() - started)
             if result.chosen is not None:
                 # Other selections see them as taken until the reservation is done.
-                shell.claim(self.request_id, result.chosen.robots)
+                shell.routes.claim(self.request_id, result.chosen.robots)
         selection = selection_json(result)
         notes = (*gathered.notes, *([result.note] if result.note else []))
         if result.chosen is None:
@@ -461,7 +479,21 @@ class RequestActor:
                 m.robot: ack.error or "no reason given"
                 for m, ack in zip(members, acks, strict=True)
                 if not ack.ok
-            }
+            },
+            frozenset(ack.robot for ack in acks if ack.unanswered),
+        )
+
+    async def _remind(self, members: Sequence[lc.Member], task: Task) -> None:
+        """The assign again, for robots back from a silence; their states say the rest."""
+        view = self.shell.view
+        await asyncio.gather(
+            *(
+                self._timed(
+                    "assign", m.cloud, view.assign, m.robot, m.cloud,
+                    command_for(self.request_id, m, task),
+                )
+                for m in members
+            )
         )
 
     async def _stop(self, robots: lc.Pairs) -> None:

@@ -41,14 +41,15 @@ from robocloud.errors import (
     Unavailable,
     describe_validation_errors,
 )
-from robocloud.federation.home import Home, reconcile_period
 from robocloud.federation.messages import CloudInfo
 from robocloud.federation.overlay import ZenohOverlay
-from robocloud.federation.view import FederationView
 from robocloud.fleet.link import RobotLink
 from robocloud.iaas.actor import Selector
+from robocloud.iaas.capabilities import KnownCapabilities
+from robocloud.iaas.cloud import build_cloud
 from robocloud.iaas.config import Settings
 from robocloud.iaas.docs_ui import install_docs
+from robocloud.iaas.elsewhere import Elsewhere
 from robocloud.iaas.metrics import IaasMetrics
 from robocloud.iaas.models import (
     ErrorBody,
@@ -75,7 +76,7 @@ from robocloud.iaas.robot_list import (
     remote_rows,
 )
 from robocloud.iaas.service import REQUEST_ID, RequestService
-from robocloud.storage import RequestRecord, RequestStore, StoreUnavailable, open_store
+from robocloud.storage import RequestRecord, RequestStore, StoreUnavailable
 
 log = logging.getLogger(__name__)
 
@@ -119,72 +120,18 @@ def create_app(
     link: RobotLink | None = None,
     selector: Selector | None = None,
 ) -> FastAPI:
-    """The IaaS; ``store``, ``link`` and ``selector`` replace the real ones (for tests)."""
+    """The IaaS's HTTP API over the parts ``build_cloud`` makes (in the lifespan).
+
+    ``store``, ``link`` and ``selector`` replace the real ones (for tests).
+    """
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
-        async with contextlib.AsyncExitStack() as stack:
-            the_store = store
-            if the_store is None:
-                the_store = open_store(settings.store_url)
-                stack.callback(the_store.close)
-            the_link = link
-            session = None
-            if the_link is None:
-                from robocloud.fleet import ZenohRobotLink, open_router
-
-                security = settings.overlay_security
-                session = open_router(
-                    list(settings.zenoh_listen),
-                    list(settings.zenoh_peers),
-                    security.for_cloud(settings.cloud, settings.trusted) if security else None,
-                )
-                stack.callback(session.close)
-                the_link = ZenohRobotLink(
-                    session,
-                    settings.cloud,
-                    offline_after=settings.offline_after,
-                    command_timeout=settings.ack_timeout,
-                    forget_after=settings.forget_after,
-                    max_fleet=settings.max_fleet,
-                )
-                stack.callback(the_link.close)
-            home = Home(
-                settings.cloud,
-                the_store,
-                the_link,
-                settings.trusted,
-                api=f"http://{settings.host}:{settings.port}",
-                lease_max=settings.lease_max,
-                lend_share=settings.lend_share,
-                origin_deadline=settings.origin_deadline,
-            )
-            overlay = None
-            if session is not None and settings.federation:
-                overlay = ZenohOverlay(
-                    session, settings.cloud, home, offline_after=settings.offline_after
-                )
-                stack.callback(overlay.close)
-                home.overlay = overlay
-                metrics.observe_refusals(overlay.presence.refusals, home.bound_refusals)
-            view = FederationView(
-                settings.cloud, the_store, the_link, overlay, settings.gather_timeout
-            )
-            home.lenders = view.lenders
-            service = RequestService(
-                settings, the_store, view, metrics=metrics, selector=selector
-            )
-            metrics.observe_states(settings.cloud, service.robot_statuses, service.active_states)
-            service.home_info = home.info
-            service.lent_for = home.lent_for
-            home.origin = service
-            await service.start()
-            stack.push_async_callback(service.stop)
-            reconciling = asyncio.ensure_future(
-                home.reconcile_forever(reconcile_period(settings.origin_deadline))
-            )
-            stack.callback(reconciling.cancel)
-            app.state.service = service
-            app.state.overlay = overlay
+        async with build_cloud(settings, metrics, store, link, selector) as cloud:
+            app.state.cloud = cloud
+            app.state.service = cloud.service
+            app.state.overlay = cloud.overlay
+            app.state.capabilities = cloud.capabilities
+            app.state.elsewhere = cloud.elsewhere
             yield
 
     app = FastAPI(
@@ -313,15 +260,27 @@ ROBOT_PAGE_HEADERS = {
 RequestId = Annotated[str, Path(description="a request's id, e.g. req-abcdefgh2345")]
 
 
+async def capabilities_of(request: Request) -> KnownCapabilities:
+    known: KnownCapabilities = request.app.state.capabilities
+    return known
+
+
+async def elsewhere_of(request: Request) -> Elsewhere:
+    elsewhere: Elsewhere = request.app.state.elsewhere
+    return elsewhere
+
+
 Service = Annotated[RequestService, Depends(service_of)]
 Application = Annotated[str, Depends(application_of)]
+Capabilities = Annotated[KnownCapabilities, Depends(capabilities_of)]
+Federation = Annotated[Elsewhere, Depends(elsewhere_of)]
 
 
 async def existing_request(
-    request_id: RequestId, service: Service, application: Application
+    request_id: RequestId, service: Service, application: Application, federation: Federation
 ) -> RequestRecord:
     """The application's request, or 404 (as a dependency: before a stream starts)."""
-    return await service.get(application, request_id)
+    return await federation.here(service.get(application, request_id), request_id)
 
 
 OwnedRequest = Annotated[RequestRecord, Depends(existing_request)]
@@ -371,6 +330,7 @@ def _routes() -> Any:
         body: RequestCreate,
         service: Service,
         application: Application,
+        known: Capabilities,
         response: Response,
         idempotency_key: Annotated[
             str | None,
@@ -383,6 +343,7 @@ def _routes() -> Any:
         ] = None,
     ) -> RequestPublic:
         """Send a task; robocloud selects, reserves and dispatches a coalition for it."""
+        await known.check(body)
         record = await service.submit(application, body.task(), body.label, idempotency_key)
         response.headers["Location"] = f"/v1/requests/{record.id}"
         return request_public(record, service)
@@ -424,9 +385,10 @@ def _routes() -> Any:
         responses=answers(401, 404, 503),
     )
     async def get_request(
-        request_id: RequestId, service: Service, application: Application
+        request_id: RequestId, service: Service, application: Application, federation: Federation
     ) -> RequestPublic:
-        return request_public(await service.get(application, request_id), service)
+        record = await federation.here(service.get(application, request_id), request_id)
+        return request_public(record, service)
 
     @api.post(
         "/v1/requests/{request_id}/cancel",
@@ -437,10 +399,11 @@ def _routes() -> Any:
         responses=answers(401, 404, 409, 503),
     )
     async def cancel_request(
-        request_id: RequestId, service: Service, application: Application
+        request_id: RequestId, service: Service, application: Application, federation: Federation
     ) -> RequestPublic:
         """Cancel a request that is not finished: every robot stops and is released."""
-        return request_public(await service.cancel(application, request_id), service)
+        record = await federation.here(service.cancel(application, request_id), request_id)
+        return request_public(record, service)
 
     @api.get(
         "/v1/requests/{request_id}/events",
@@ -554,7 +517,15 @@ def _routes() -> Any:
             fleets = await asyncio.to_thread(overlay.fleets)
             remote = remote_rows((f.robots for f in fleets), wanted, service.settings.cloud)
         page = build_page(
-            local, remote, after, limit, link.states(), link.ages(), held, robot_json_cache
+            local,
+            remote,
+            after,
+            limit,
+            link.states(),
+            link.ages(),
+            held,
+            robot_json_cache,
+            service.routes.aside,
         )
         etag = etag_of(page)
         headers = {
@@ -707,7 +678,7 @@ class Gate:
                 service: RequestService | None = getattr(scope["app"].state, "service", None)
                 try:
                     if service is not None:
-                        service.admit()
+                        service.admission.admit()
                 except Busy as busy:
                     await _error(busy)(scope, receive, send)
                     return

@@ -65,6 +65,15 @@ class Settings:
     max_waiting: int = 1000
     busy_after: float = 0.5
     cancel_timeout: float = 15.0  # seconds a cancel waits for its state to be stored
+    # The watchdog (robocloud.iaas.lifecycle, docs/model.md): a robot may take
+    # its expected time plus the larger of overrun_ratio of it and overrun_min
+    # robot seconds; stall_after seconds (wall clock) without progress while it
+    # travels or works is a stall. A robot that fails so (or gives no ack) twice
+    # in a row is set aside for set_aside_for seconds.
+    overrun_ratio: float = 0.5
+    overrun_min: float = 30.0
+    stall_after: float = 30.0
+    set_aside_for: float = 300.0
     # Selections run in worker processes (robocloud.iaas.selector); 0: in a
     # thread of the IaaS (for fast tests). The budget is the time a selection
     # may take; its worker is stopped a second after it.

@@ -32,6 +32,16 @@ The rules that keep robots honest:
 - A robot that fails (its battery died, it went offline, it was silent for
   ``offline_after`` seconds, it dropped the request) is told to stop, released
   and replaced within what is left of the task's cost, time and robot count.
+- The watchdog: a robot past its expected finish (its t_i from when it was
+  sent, plus ``Rules.tolerance`` of it), or that reports no progress for
+  ``stall_after`` seconds while it travels or works, has failed: it is told
+  to stop and replaced. Progress a robot reports extends nothing. A request
+  is never dispatched or underway past its ``max_time`` plus the tolerance of
+  it (robot time, under the simulator's speed-up): it fails, every robot
+  told to stop.
+- Each robot's failure is reported (``RobotFailed``, with its cause), and
+  each part done (``RobotDone``): the supervisor counts them and sets aside
+  robots that keep failing (``robocloud.iaas.routes``).
 - A robot's report of its ``last_task`` counts: a robot that finished while
   this IaaS was down is done, not failed.
 - A final state never changes; the results of an attempt that arrive after it
@@ -47,6 +57,16 @@ from typing import Any, Literal
 from robocloud.domain import FINAL_STATES, Task
 
 Pairs = tuple[tuple[str, str], ...]  # (robot id, its cloud)
+# Why a robot failed its part (``RobotFailed``; the metrics count them by cause).
+Cause = Literal[
+    "no_ack", "overrun", "stalled", "offline", "silent", "reported", "dropped", "loan_ended"
+]
+CAUSES: tuple[str, ...] = (
+    "no_ack", "overrun", "stalled", "offline", "silent", "reported", "dropped", "loan_ended",
+)
+# The causes that count against a robot (two in a row set it aside): the robot's
+# own doing, not a loan's end or a battery that died.
+STRIKING: frozenset[str] = frozenset({"no_ack", "overrun", "stalled"})
 Purpose = Literal["dispatch", "replace"]
 Stage = Literal["selecting", "reserving", "assigning"]
 
@@ -67,6 +87,24 @@ class Rules:
     # After a restart of the IaaS its robots must first reconnect (a Zenoh client
     # retries every 1 to 4 s): none is counted silent before this many seconds.
     restart_grace: float = 10.0
+    # The watchdog (docs/model.md, "The watchdog"): a robot may take its t_i plus
+    # the larger of ``overrun_ratio`` of it and ``overrun_min`` robot seconds.
+    overrun_ratio: float = 0.5
+    overrun_min: float = 30.0
+    # Seconds (wall clock) without progress while travelling or working: stalled.
+    stall_after: float = 30.0
+    # A robot heard again after this much silence (a gateway that restarted, a
+    # link that came back) is sent its assign again: idempotent for a robot on
+    # the task, and what a restarted gateway needs to keep the robot's order.
+    remind_after: float = 2.0
+
+    def tolerance(self, expected: float) -> float:
+        """Robot seconds a robot (or a request) may run past ``expected`` robot seconds."""
+        return max(self.overrun_ratio * expected, self.overrun_min)
+
+    def due(self, start_wall: float, expected: float) -> float:
+        """The wall time past which something started at ``start_wall`` has overrun."""
+        return start_wall + (expected + self.tolerance(expected)) / self.time_scale
 
 
 @dataclass(frozen=True)
@@ -84,6 +122,7 @@ class Member:
     since: float = 0.0  # monotonic: when the request began to follow it
     heard_at: float = 0.0  # monotonic: its latest report (or ``since``)
     confirmed: bool = False  # it has reported working on this request
+    progressed_at: float = 0.0  # monotonic: when its progress last grew (or ``since``)
 
     @property
     def pair(self) -> tuple[str, str]:
@@ -189,9 +228,13 @@ class Reserved:
 
 @dataclass(frozen=True)
 class Acked:
-    """The result of ``Assign``: robot -> why, for each robot that did not acknowledge ok."""
+    """The result of ``Assign``: robot -> why, for each robot that did not acknowledge ok.
+
+    ``unanswered``: those of them that gave no answer within the ack deadline.
+    """
 
     refused: Mapping[str, str] = field(default_factory=dict)
+    unanswered: frozenset[str] = frozenset()
 
 
 @dataclass(frozen=True)
@@ -208,6 +251,7 @@ class RobotReport:
     phase: str | None = None
     progress: float = 0.0
     last_phase: str | None = None
+    reason: str | None = None  # why its task failed, when it says (protocol 1.1)
 
 
 @dataclass(frozen=True)
@@ -295,6 +339,14 @@ class Assign:
 
 
 @dataclass(frozen=True)
+class Remind:
+    """Send these robots their assign again (no answer expected: their states tell)."""
+
+    members: tuple[Member, ...]
+    task: Task
+
+
+@dataclass(frozen=True)
 class Confirm:
     """Make the robots' holds at other clouds firm (the request is dispatched)."""
 
@@ -322,6 +374,30 @@ class StopRobots:
 
 
 @dataclass(frozen=True)
+class Unclaim:
+    """The robots a selection chose are reserved, or not: their claim ends."""
+
+    robots: Pairs
+
+
+@dataclass(frozen=True)
+class RobotFailed:
+    """A robot failed its part (or did not take it): counted, and held against it."""
+
+    robot: str
+    cloud: str
+    cause: Cause
+    why: str
+
+
+@dataclass(frozen=True)
+class RobotDone:
+    """A robot finished its part."""
+
+    robot: str
+
+
+@dataclass(frozen=True)
 class Follow:
     """Route these robots' reports to this request (and watch them at other clouds)."""
 
@@ -341,10 +417,14 @@ Effect = (
     | Select
     | Reserve
     | Assign
+    | Remind
     | Confirm
     | Release
     | ReleaseAll
     | StopRobots
+    | Unclaim
+    | RobotFailed
+    | RobotDone
     | Follow
     | Unfollow
 )
@@ -368,7 +448,7 @@ def _on_start(life: Life, event: Start, now: Now) -> Step:
             return _end(life, "failed", reason="its coalition was lost in a restart of the IaaS")
         grace = now.mono + max(0.0, life.rules.restart_grace - life.rules.offline_after)
         members = {
-            r: replace(m, since=grace, heard_at=grace, confirmed=False)
+            r: replace(m, since=grace, heard_at=grace, progressed_at=grace, confirmed=False)
             for r, m in life.members.items()
         }
         life = replace(life, members=members, resumed=True)
@@ -389,7 +469,10 @@ def _on_start(life: Life, event: Start, now: Now) -> Step:
 def _on_selected(life: Life, event: Selected, now: Now) -> Step:
     attempt = life.attempt
     if attempt is None or attempt.stage != "selecting" or life.final:
-        return life, []  # an answer to an attempt that is over
+        # An answer to an attempt that is over: what it chose is free again.
+        if event.chosen:
+            return life, [Unclaim(_pairs(event.chosen))]
+        return life, []
     notes: list[Effect] = [Note(n) for n in event.notes]
     if event.chosen is None:
         reason = event.reason or "no feasible coalition"
@@ -400,7 +483,8 @@ def _on_selected(life: Life, event: Selected, now: Now) -> Step:
         life, effects = _replacement_failed(life, attempt, reason)
         return life, notes + effects
     chosen = tuple(
-        replace(m, since=now.mono, heard_at=now.mono, confirmed=False) for m in event.chosen
+        replace(m, since=now.mono, heard_at=now.mono, progressed_at=now.mono, confirmed=False)
+        for m in event.chosen
     )
     attempt = replace(attempt, stage="reserving", chosen=chosen, selection=event.selection)
     return replace(life, attempt=attempt), [*notes, Reserve(attempt.pairs)]
@@ -410,22 +494,27 @@ def _on_reserved(life: Life, event: Reserved, now: Now) -> Step:
     attempt = life.attempt
     if attempt is None or attempt.stage != "reserving":
         return life, []
+    # Reserved or not, the robots' claim ends: the store's reservation (and
+    # the route that follows) keep them now, or they are free.
+    unclaim = Unclaim(attempt.pairs)
     if life.final:
         # All or nothing: with robots taken, nothing of this try is held.
         if event.taken:
-            return replace(life, attempt=None), []
-        return replace(life, attempt=None), [Release(attempt.pairs, "the request is over")]
+            return replace(life, attempt=None), [unclaim]
+        return replace(life, attempt=None), [unclaim, Release(attempt.pairs, "the request is over")]
     if event.taken:
         life = replace(life, excluded=life.excluded | set(event.taken))
-        return _retry(
+        life, more = _retry(
             life,
             attempt,
             f"robots {', '.join(event.taken)} were taken by another request meanwhile",
             now,
         )
+        return life, [unclaim, *more]
     attempt = replace(attempt, stage="assigning")
     return replace(life, attempt=attempt), [
         Follow(attempt.pairs),
+        unclaim,
         Assign(attempt.chosen, attempt.task),
     ]
 
@@ -448,9 +537,18 @@ def _on_acked(life: Life, event: Acked, now: Now) -> Step:
             Unfollow(attempt.pairs),
             Release(attempt.pairs, "refused"),
         ]
+        clouds = dict(attempt.pairs)
+        stop += [
+            RobotFailed(r, clouds[r], "no_ack", event.refused[r].rstrip("."))
+            for r in sorted(event.unanswered)
+            if r in event.refused and r in clouds
+        ]
         life = replace(life, excluded=life.excluded | set(event.refused))
         why = "; ".join(
-            f"robot {r} refused the task: {w.rstrip('.')}" for r, w in event.refused.items()
+            w.rstrip(".")
+            if r in event.unanswered
+            else f"robot {r} refused the task: {w.rstrip('.')}"
+            for r, w in event.refused.items()
         )
         others = [r for r, _ in attempt.pairs if r not in event.refused]
         if others:  # their history would not name them otherwise
@@ -524,20 +622,31 @@ def _on_report(life: Life, event: RobotReport, now: Now) -> Step:
         return life, []
     if event.phase is not None:
         if event.phase == "failed" or (event.status == "offline" and event.phase != "done"):
-            return _member_failed(life, event.robot, _why_failed(event), now)
-        return _advance(_with(life, _heard(member, event, now)))
+            return _member_failed(life, event.robot, *_why_failed(event), now)
+        heard = _heard(member, event, now)
+        life, effects = _advance(_with(life, heard))
+        if heard.phase == "done":
+            effects = [RobotDone(event.robot), *effects]
+        elif now.mono - member.heard_at > life.rules.remind_after:
+            # Back from a silence on this request's task: tell it again that
+            # the task is still its (a restarted gateway keeps the order).
+            effects = [Remind((heard,), life.task), *effects]
+        return life, effects
     if event.last_phase == "done":
         done = replace(member, phase="done", progress=1.0, heard_at=now.mono, confirmed=True)
-        return _advance(_with(life, done))
+        life, effects = _advance(_with(life, done))
+        return life, [RobotDone(event.robot), *effects]
     if event.last_phase == "failed" or event.status == "offline":
-        return _member_failed(life, event.robot, _why_failed(event), now)
+        return _member_failed(life, event.robot, *_why_failed(event), now)
     if member.confirmed:
-        return _member_failed(life, event.robot, "it no longer reports this request", now)
+        return _member_failed(
+            life, event.robot, "dropped", "it no longer reports this request", now
+        )
     if now.mono - member.since > life.rules.offline_after:
         why = "it does not report this request"
         if life.resumed:
             why = "it no longer reports this request after the restart"
-        return _member_failed(life, event.robot, why, now)
+        return _member_failed(life, event.robot, "dropped", why, now)
     return _with(life, replace(member, heard_at=now.mono)), []
 
 
@@ -546,15 +655,51 @@ def _on_tick(life: Life, event: Tick, now: Now) -> Step:
         return life, []
     effects: list[Effect] = []
     for member in list(life.members.values()):
-        silent = now.mono - member.heard_at
-        if member.phase != "done" and silent > life.rules.offline_after:
-            life, more = _member_failed(
-                life, member.robot, f"it has been silent for {silent:.0f} s", now
-            )
+        if member.phase == "done":
+            continue
+        failure = _watchdog(life, member, now)
+        if failure is not None:
+            life, more = _member_failed(life, member.robot, *failure, now)
             effects += more
             if life.final:
-                break
+                return life, effects
+    rules, task = life.rules, life.task
+    if (
+        life.state in ("dispatched", "underway")
+        and life.dispatched_at is not None
+        and now.wall > rules.due(life.dispatched_at, task.max_time)
+    ):
+        working = [m.robot for m in life.followed() if m.phase != "done"]
+        life, more = _end(
+            life,
+            "failed",
+            reason=f"it ran past its max_time of {task.max_time:g} s plus the tolerance of "
+            f"{rules.tolerance(task.max_time):g} s (robot time); "
+            + (f"{', '.join(working)} told to stop" if working else "no robot was left working"),
+        )
+        effects += more
     return life, effects
+
+
+def _watchdog(life: Life, member: Member, now: Now) -> tuple[Cause, str] | None:
+    """Whether a robot of the coalition has failed by the clock: silent, overrun, stalled."""
+    rules = life.rules
+    silent = now.mono - member.heard_at
+    if silent > rules.offline_after:
+        return "silent", f"it has been silent for {silent:.0f} s"
+    if life.dispatched_at is not None:
+        start = life.dispatched_at + member.offset / rules.time_scale
+        due = rules.due(start, member.time)
+        if now.wall > due:
+            return "overrun", (
+                f"it is past its expected finish ({member.time:.0f} s robot time, plus "
+                f"{rules.tolerance(member.time):.0f} s of tolerance) by "
+                f"{(now.wall - due) * rules.time_scale:.0f} s"
+            )
+    still = now.mono - member.progressed_at
+    if member.confirmed and member.phase in ("travel", "work") and still > rules.stall_after:
+        return "stalled", f"it reported no progress for {still:.0f} s (stalled)"
+    return None
 
 
 def _on_cancel(life: Life, event: CancelAsked, now: Now) -> Step:
@@ -570,7 +715,7 @@ def _on_loan_ended(life: Life, event: LoanEnded, now: Now) -> Step:
     if event.robot not in life.members:
         return life, note
     life, effects = _member_failed(
-        life, event.robot, f"its home {event.home} ended the loan", now
+        life, event.robot, "loan_ended", f"its home {event.home} ended the loan", now
     )
     return life, note + effects
 
@@ -597,14 +742,15 @@ _HANDLERS: dict[type, Callable[[Life, Any, Now], Step]] = {
 # -- the steps the handlers share -----------------------------------------------------
 
 
-def _why_failed(event: RobotReport) -> str:
+def _why_failed(event: RobotReport) -> tuple[Cause, str]:
     """Why a robot that reports its task failed, or that went offline at it, failed it."""
+    said = f": {event.reason.rstrip('.')}" if event.reason else ""
     if event.battery <= 0:
-        return "its battery died"
+        return "offline", f"its battery died{said}"
     if event.status == "offline":
-        return "it went offline"
+        return "offline", f"it went offline{said}"
     # A fleet gateway reports a task its vehicle dropped while still online.
-    return "it reported that it cannot finish its task"
+    return "reported", f"it reported that it cannot finish its task{said}"
 
 
 def _begin(
@@ -634,7 +780,7 @@ def _retry(life: Life, attempt: Attempt, why: str, now: Now) -> Step:
     return life, [Note(f"{why}; selecting again (attempt {attempt.number + 1})"), *effects]
 
 
-def _member_failed(life: Life, robot: str, why: str, now: Now) -> Step:
+def _member_failed(life: Life, robot: str, cause: Cause, why: str, now: Now) -> Step:
     member = life.members[robot]
     members = {r: m for r, m in life.members.items() if r != robot}
     life = replace(
@@ -645,6 +791,7 @@ def _member_failed(life: Life, robot: str, why: str, now: Now) -> Step:
         StopRobots((member.pair,)),
         Release((member.pair,), f"robot failed: {why}"),
         Note(f"robot {robot} failed: {why}"),
+        RobotFailed(robot, member.cloud, cause, why),
     ]
     if life.attempt is not None:
         return life, effects  # the replacement under way looks again when it ends
@@ -745,15 +892,23 @@ def _end(
 # -- small pure helpers ------------------------------------------------------------------
 
 
+_PHASE_ORDER = {"pending": 0, "travel": 1, "work": 2, "done": 3}
+
+
 def _heard(member: Member, event: RobotReport, now: Now) -> Member:
     if event.phase is None:
         return replace(member, heard_at=now.mono)
+    # Progress never goes back: an older report (reordered, replayed) moves
+    # nothing, and does not count as progress for the watchdog.
+    ahead = _PHASE_ORDER.get(event.phase, 0) - _PHASE_ORDER.get(member.phase, 0)
+    moved = ahead > 0 or (ahead == 0 and event.progress > member.progress)
     return replace(
         member,
-        phase=event.phase,
-        progress=event.progress,
+        phase=event.phase if ahead > 0 else member.phase,
+        progress=max(event.progress, member.progress),
         heard_at=now.mono,
         confirmed=True,
+        progressed_at=now.mono if moved else member.progressed_at,
     )
 
 

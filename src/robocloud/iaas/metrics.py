@@ -99,7 +99,35 @@ class IaasMetrics:
             ["operation"],
             registry=r,
         )
+        self.robot_failures = Counter(
+            "robocloud_robot_failures",
+            "Robots that failed their part of a request, by cause: no_ack (no answer to the "
+            "assign within the ack deadline), overrun (past its expected finish plus the "
+            "tolerance: the watchdog), stalled (no progress reported), offline, silent, "
+            "reported (the robot said it cannot finish), dropped (it stopped reporting the "
+            "request), loan_ended.",
+            ["cause"],
+            registry=r,
+        )
+        self.stops = Counter(
+            "robocloud_stops",
+            "Stop commands sent to robots: request (a request's own stop: a robot failed, "
+            "refused, or its request ended) and stray (a robot still working for a request "
+            "that does not need it, told again at most once a second).",
+            ["kind"],
+            registry=r,
+        )
+        self.set_aside = Counter(
+            "robocloud_robots_set_aside",
+            "Robots set aside for a cool-down (--set-aside-for) after failing requests in a "
+            "row (no ack, stalled, overrun).",
+            registry=r,
+        )
         # Every label value known in advance shows at 0 from the first scrape.
+        for cause in FAILURE_CAUSES:
+            self.robot_failures.labels(cause)
+        for kind in ("request", "stray"):
+            self.stops.labels(kind)
         for state in REQUEST_STATES:
             self.transitions.labels(state)
         for outcome in sorted(FINAL_STATES):
@@ -129,6 +157,12 @@ class IaasMetrics:
         """The scrape's body and content type (OpenMetrics if the scraper asks for it)."""
         encode, content_type = choose_encoder(accept or "")
         return encode(self.registry), content_type
+
+
+# Why a robot failed its part of a request (``robocloud.iaas.lifecycle.Failure``).
+FAILURE_CAUSES = (
+    "no_ack", "overrun", "stalled", "offline", "silent", "reported", "dropped", "loan_ended",
+)
 
 
 class _Gauges:

@@ -85,6 +85,11 @@ class RequestPublic(BaseModel):
         None, description="the point of the Pareto front the selection chose"
     )
     pareto: list[FrontMember] = Field(default_factory=list)
+    choices: dict[Literal["balanced", "time", "cost"], int] | None = Field(
+        None,
+        description="priority -> the index in `pareto` of the member that priority would "
+        "choose (docs/model.md, The choice); null when there is no front",
+    )
     optimizer: str | None = None
     selection_ms: float | None = None
     history: list[HistoryEntry]
@@ -95,13 +100,18 @@ class RequestList(BaseModel):
     next: str | None = Field(None, description="cursor for the next page (`before=`)")
 
 
+class SetAsidePublic(BaseModel):
+    until: datetime = Field(description="when it may be chosen again (UTC)")
+    why: str = Field(description="the failures that set it aside")
+
+
 class RobotPublic(BaseModel):
     id: str
     cloud: str
     kind: str | None = None
     position: list[float]
     speed: float
-    battery: float
+    battery: float = Field(description="percent, rounded to 0.1")
     status: str
     capabilities: list[str]
     capability_kinds: dict[str, str] = Field(
@@ -109,6 +119,11 @@ class RobotPublic(BaseModel):
     )
     request: str | None = Field(None, description="the request the robot is reserved for")
     progress: Progress | None = None
+    set_aside: SetAsidePublic | None = Field(
+        None,
+        description="this cloud's selections do not choose the robot until `until`: it "
+        "failed requests in a row (no ack, stalled, past its expected finish)",
+    )
     seen_ago: float | None = Field(None, description="seconds since its last state message")
 
 

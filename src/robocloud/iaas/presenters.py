@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+from datetime import UTC, datetime
 from typing import TYPE_CHECKING, Any
 
-from robocloud.domain import Robot
+from robocloud.domain import Coalition, Robot
 from robocloud.fleet.messages import State
 from robocloud.iaas.models import (
     Assignment,
@@ -13,6 +14,8 @@ from robocloud.iaas.models import (
     Progress,
     RequestPublic,
 )
+from robocloud.iaas.routes import SetAside
+from robocloud.selection.choice import choices
 from robocloud.storage import RequestRecord
 
 if TYPE_CHECKING:
@@ -47,6 +50,7 @@ def request_public(record: RequestRecord, service: RequestService) -> RequestPub
                 progress = Progress(phase="pending", progress=0.0)
             coalition.append(Assignment(progress=progress, **a))
     chosen = selection.get("chosen") or None
+    front_json = selection.get("pareto") or []
     current = selection.get("current") or chosen or {}
     return RequestPublic(
         id=record.id,
@@ -60,7 +64,8 @@ def request_public(record: RequestRecord, service: RequestService) -> RequestPub
         time=current.get("time"),
         cost=current.get("cost"),
         chosen=FrontMember(**chosen) if chosen else None,
-        pareto=[FrontMember(**m) for m in selection.get("pareto", [])],
+        pareto=[FrontMember(**m) for m in front_json],
+        choices=choices_of(front_json),
         optimizer=selection.get("optimizer"),
         selection_ms=selection.get("elapsed_ms"),
         history=[
@@ -70,8 +75,19 @@ def request_public(record: RequestRecord, service: RequestService) -> RequestPub
     )
 
 
+def choices_of(front: list[dict[str, Any]]) -> dict[str, int] | None:
+    """Where each priority would choose on a stored front (``RequestPublic.choices``)."""
+    return choices(
+        [Coalition(robots=tuple(m["robots"]), time=m["time"], cost=m["cost"]) for m in front]
+    )
+
+
 def robot_json(
-    robot: Robot, state: State | None, age: float | None, request: str | None
+    robot: Robot,
+    state: State | None,
+    age: float | None,
+    request: str | None,
+    aside: SetAside | None = None,
 ) -> dict[str, Any]:
     """One robot of this cloud as ``RobotPublic`` puts it on the wire, as plain JSON values.
 
@@ -86,14 +102,27 @@ def robot_json(
         "kind": state.kind if state else None,
         "position": [float(v) for v in robot.position],
         "speed": float(robot.speed),
-        "battery": float(robot.battery),
+        "battery": shown_battery(robot.battery),
         "status": shown_status(robot.status, request),
         "capabilities": sorted(robot.capabilities),
         "capability_kinds": {n: c.kind for n, c in robot.capabilities.items()},
         "request": request,
         "progress": progress,
+        "set_aside": set_aside_json(aside),
         "seen_ago": round(age, 3) if age is not None else None,
     }
+
+
+def set_aside_json(aside: SetAside | None) -> dict[str, Any] | None:
+    if aside is None:
+        return None
+    until = datetime.fromtimestamp(aside.until, UTC).isoformat().replace("+00:00", "Z")
+    return {"until": until, "why": aside.why}
+
+
+def shown_battery(battery: float) -> float:
+    """Battery in percent, rounded to 0.1 for display (robots report it with 14 decimals)."""
+    return round(float(battery), 1)
 
 
 def shown_status(status: str, request: str | None) -> str:
@@ -114,11 +143,12 @@ def remote_robot_json(data: dict[str, Any]) -> dict[str, Any]:
         "kind": data.get("kind"),
         "position": [float(v) for v in data["position"]],
         "speed": float(data["speed"]),
-        "battery": float(data["battery"]),
+        "battery": shown_battery(data["battery"]),
         "status": data["status"],
         "capabilities": sorted(capabilities),
         "capability_kinds": {n: c["kind"] for n, c in capabilities.items()},
         "request": data.get("request"),
         "progress": progress,
+        "set_aside": None,
         "seen_ago": None,
     }

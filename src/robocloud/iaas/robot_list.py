@@ -25,7 +25,7 @@ import base64
 import binascii
 import hashlib
 import json
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
 from urllib.parse import urlencode
@@ -35,6 +35,7 @@ import msgspec
 from robocloud.domain import Robot
 from robocloud.errors import InvalidInput, explained
 from robocloud.iaas.presenters import remote_robot_json, robot_json, shown_status
+from robocloud.iaas.routes import SetAside
 
 DEFAULT_LIMIT = 1000  # robots a page when the client does not say
 MAX_LIMIT = 10_000  # the most a client may ask for (about 2.8 MB of JSON, 0.2 MB gzipped)
@@ -80,16 +81,24 @@ class RobotJson:
     """
 
     def __init__(self) -> None:
-        self._kept: dict[str, tuple[Robot, Any, str | None, bytes]] = {}
+        self._kept: dict[str, tuple[Robot, Any, str | None, SetAside | None, bytes]] = {}
 
-    def steady(self, robot: Robot, state: Any, request: str | None) -> bytes:
+    def steady(
+        self, robot: Robot, state: Any, request: str | None, aside: SetAside | None = None
+    ) -> bytes:
         kept = self._kept.get(robot.id)
-        if kept is not None and kept[0] is robot and kept[1] is state and kept[2] == request:
-            return kept[3]
-        data = robot_json(robot, state, None, request)
+        if (
+            kept is not None
+            and kept[0] is robot
+            and kept[1] is state
+            and kept[2] == request
+            and kept[3] is aside
+        ):
+            return kept[4]
+        data = robot_json(robot, state, None, request, aside)
         del data["seen_ago"]
         raw = msgspec.json.encode(data)
-        self._kept[robot.id] = (robot, state, request, raw)
+        self._kept[robot.id] = (robot, state, request, aside, raw)
         return raw
 
     def prune(self, present: int) -> None:
@@ -179,6 +188,7 @@ def build_page(
     ages: dict[str, float],
     held: dict[str, str],
     cache: RobotJson,
+    aside: Callable[[str], SetAside | None] = lambda robot: None,
 ) -> Page:
     rows: list[tuple[Key, Any]] = [*local, *remote]
     chosen, total, next_key = page_of(rows, after, limit)
@@ -189,7 +199,7 @@ def build_page(
             robots.append(raw)
             steady.append(raw)
             continue
-        raw = cache.steady(item, states.get(item.id), held.get(item.id))
+        raw = cache.steady(item, states.get(item.id), held.get(item.id), aside(item.id))
         age = ages.get(item.id)
         seen = msgspec.json.encode(round(age, 3)) if age is not None else b"null"
         robots.append(raw[:-1] + b',"seen_ago":' + seen + b"}")

@@ -2,14 +2,18 @@
 
 Each active request is an actor (``robocloud.iaas.actor``) whose rules are the
 pure ``robocloud.iaas.lifecycle.decide``. This service starts the actors (for
-new requests, and for unfinished ones after a restart), routes the robots'
-reports to the request that follows each robot, answers the HTTP API, and
-keeps every task it starts: it awaits them when it stops and logs their errors.
+new requests, and for unfinished ones after a restart), hands each robot's
+report to the request that follows it, answers the HTTP API, and keeps every
+task it starts: it awaits them when it stops and logs their errors.
 
-Robots are always told: a robot of this cloud that reports working on a
-request that is not active for it (neither one of this cloud's requests that
-follows it nor a loan to another cloud) is told to stop, at once and then at
-most once a second while it keeps at it.
+The jobs beside it have owners of their own, handed to it built:
+
+- ``robocloud.iaas.routes.RobotRoutes``: which robot follows or is claimed by
+  which request, and which robots are set aside;
+- ``robocloud.iaas.admission.Admission``: load shedding (a busy cloud says so);
+- ``robocloud.iaas.feed.RequestFeed``: the requests' event streams;
+- ``robocloud.iaas.strays.StrayRobots``: a robot working for a request that
+  does not need it is told to stop.
 """
 
 from __future__ import annotations
@@ -20,7 +24,7 @@ import logging
 import os
 import re
 import time
-from collections.abc import AsyncIterator, Callable, Coroutine, Iterable
+from collections.abc import AsyncIterator, Callable, Coroutine
 from concurrent.futures import ThreadPoolExecutor
 from functools import partial
 from typing import Any, TypeVar
@@ -29,7 +33,6 @@ from pydantic import ValidationError
 
 from robocloud.domain import Task, is_final
 from robocloud.errors import (
-    Busy,
     Conflict,
     InvalidInput,
     NotFound,
@@ -41,10 +44,14 @@ from robocloud.federation.view import FederationView
 from robocloud.fleet.messages import State
 from robocloud.iaas import lifecycle as lc
 from robocloud.iaas.actor import RequestActor, Selector, Shell
+from robocloud.iaas.admission import Admission
 from robocloud.iaas.config import Settings
+from robocloud.iaas.feed import RequestFeed
 from robocloud.iaas.metrics import IaasMetrics
+from robocloud.iaas.routes import RobotRoutes
 from robocloud.iaas.selector import SelectionPool, SelectorSettings
 from robocloud.iaas.store_writes import StoreWrites
+from robocloud.iaas.strays import StrayRobots
 from robocloud.selection.pipeline import select_problem
 from robocloud.selection.problem import CoalitionProblem
 from robocloud.selection.result import SelectionResult
@@ -54,17 +61,12 @@ log = logging.getLogger(__name__)
 
 T = TypeVar("T")
 REQUEST_ID = re.compile(r"^req-[a-z2-7]{12}$")
-WORKING = frozenset({"travel", "work"})
-TELL_AGAIN_AFTER = 1.0  # seconds between two stop commands to a robot for one request
 IO_THREADS = 64  # blocking calls at once that wait on the network: robots' acks, other clouds
 # Store calls get threads of their own, few: SQLite writes one at a time anyway,
 # and many threads contending for the GIL while one holds the write lock made
 # every write wait (measured: POST answers of 14 s at 30 requests/s with 64).
 STORE_THREADS = 4
 UNDECIDED = frozenset({"received", "selecting"})
-# A cloud is busy (new requests refused) only when at least this many requests
-# wait and the oldest has waited too long: one slow selection alone is not busy.
-BUSY_MIN = 8
 
 
 class RequestService:
@@ -78,6 +80,9 @@ class RequestService:
         clock: Callable[[], float] = time.time,
         selector: Selector | None = None,
         metrics: IaasMetrics | None = None,
+        routes: RobotRoutes | None = None,
+        home_info: Callable[[], CloudInfo] | None = None,
+        lent_for: Callable[[str], str | None] = lambda robot: None,
     ) -> None:
         self.settings = settings
         self.metrics = metrics or IaasMetrics()
@@ -85,6 +90,13 @@ class RequestService:
         self.view = view
         self.link = view.link
         self.clock = clock
+        self.routes = routes or RobotRoutes(settings.set_aside_for, clock)
+        self.feed = RequestFeed()
+        # This cloud's presence summary (its Home's) and its loans.
+        self.home_info: Callable[[], CloudInfo] = home_info or (
+            lambda: CloudInfo(cloud=settings.cloud, robots=len(self.link.robots()), idle=0)
+        )
+        self.lent_for = lent_for
         self._io = ThreadPoolExecutor(IO_THREADS, thread_name_prefix=f"iaas-{settings.cloud}")
         self._store_threads = ThreadPoolExecutor(
             STORE_THREADS, thread_name_prefix=f"store-{settings.cloud}"
@@ -127,34 +139,34 @@ class RequestService:
                 offline_after=settings.offline_after,
                 attempts=settings.reselect_attempts,
                 time_scale=settings.time_scale,
+                overrun_ratio=settings.overrun_ratio,
+                overrun_min=settings.overrun_min,
+                stall_after=settings.stall_after,
             ),
             blocking=self.blocking,
             store_write=self.store_write,
-            follow=self._follow,
-            unfollow=self._unfollow,
             publish=self._publish,
-            held=lambda: self._routes.keys() | self._claims.keys(),
-            claim=self._claim,
-            unclaim=self._unclaim,
+            routes=self.routes,
             wall=clock,
             metrics=self.metrics,
             selection_turn=lambda: self._selection_turns,
         )
+        self.admission = Admission(
+            settings.max_waiting, settings.busy_after, self.metrics, self._shell.mono
+        )
+        self.strays = StrayRobots(
+            settings.cloud,
+            self.link,
+            self.routes,
+            lambda robot: self.lent_for(robot),
+            self.blocking,
+            self._spawn,
+            self.metrics,
+        )
         self._actors: dict[str, RequestActor] = {}
         self._tasks: set[asyncio.Task[Any]] = set()  # actors and background work
-        self._routes: dict[str, str] = {}  # robot -> the request that follows it
-        self._claims: dict[str, str] = {}  # robot -> the request reserving it now
-        self._listeners: dict[str, set[asyncio.Queue[RequestRecord | None]]] = {}
-        self._told: dict[tuple[str, str], float] = {}  # (robot, request) -> when told to stop
-        # Requests not decided yet (received or selecting) -> when they came, oldest first.
-        self._waiting: dict[str, float] = {}
         self._loop: asyncio.AbstractEventLoop | None = None
         self._stop_listening: Callable[[], None] = lambda: None
-        # This cloud's presence summary and its loans (set by the app from its Home).
-        self.home_info: Callable[[], CloudInfo] = lambda: CloudInfo(
-            cloud=settings.cloud, robots=len(self.link.robots()), idle=0
-        )
-        self.lent_for: Callable[[str], str | None] = lambda robot: None
 
     # -- life of the service -------------------------------------------------------
 
@@ -170,9 +182,7 @@ class RequestService:
         for task in list(self._tasks):
             task.cancel()
         await asyncio.gather(*self._tasks, return_exceptions=True)
-        for queues in self._listeners.values():
-            for queue in queues:
-                queue.put_nowait(None)
+        self.feed.close()
         if self._pool is not None:
             self._pool.close()
         self._io.shutdown(wait=False, cancel_futures=True)
@@ -225,8 +235,8 @@ class RequestService:
         def ended(_: asyncio.Task[Any]) -> None:
             if self._actors.get(record.id) is actor:
                 del self._actors[record.id]
-                self._waiting.pop(record.id, None)
-            self._forget_routes(record.id)
+                self.admission.decided(record.id)
+            self.routes.forget(record.id)
 
         task.add_done_callback(ended)
 
@@ -249,7 +259,7 @@ class RequestService:
     ) -> RequestRecord:
         posted_at = self._shell.mono()
         task_json = task.model_dump(mode="json")
-        if idempotency_key is not None and self.busy(posted_at) is not None:
+        if idempotency_key is not None and self.admission.busy(posted_at) is not None:
             # A retry of a request this cloud has (its answer was lost, say) is
             # answered with it even when busy: nothing new would be stored.
             existing = await self.in_store(
@@ -257,7 +267,7 @@ class RequestService:
             )
             if existing is not None:
                 return _same_body(existing, task_json, label, idempotency_key)
-        self.admit(posted_at)
+        self.admission.admit(posted_at)
         record, created = await self.store_write(
             self.store.create_request, application, task_json, label, idempotency_key
         )
@@ -265,47 +275,9 @@ class RequestService:
             return _same_body(record, task_json, label, idempotency_key)
         life = lc.Life(request_id=record.id, task=task, rules=self._shell.rules)
         self.metrics.entered(record.state)
-        self._waiting[record.id] = posted_at
+        self.admission.waits(record.id, posted_at)
         self._start(record, life, lc.Start(), posted_at)
         return record
-
-    def admit(self, now: float | None = None) -> None:
-        """Raise ``Busy`` (counted in the metrics) when a new request is refused now."""
-        refusal = self.busy(now)
-        if refusal is not None:
-            self.metrics.refused.inc()
-            raise refusal
-
-    def busy(self, now: float | None = None) -> Busy | None:
-        """Why a new request is refused now (503), or None: load shedding.
-
-        Accepting what the cloud cannot decide in time makes every request
-        late: robots stay held by requests the IaaS has not caught up with, and
-        later ones are rejected for want of them, seconds after their 202
-        (measured at 200 requests/s on 1,000 robots: 1,510 of 2,000 accepted
-        requests rejected so, the median dispatched after 2.9 s). So a new
-        request is refused while ``max_waiting`` requests wait for their
-        robots, or while at least ``BUSY_MIN`` wait and the oldest has waited
-        ``busy_after`` seconds: one slow selection alone never refuses any.
-        """
-        waiting = len(self._waiting)
-        if waiting < BUSY_MIN and waiting < self.settings.max_waiting:
-            return None
-        if waiting >= self.settings.max_waiting:
-            are = "request is waiting for its" if waiting == 1 else "requests are waiting for their"
-            return Busy(
-                f"this cloud is busy: {waiting} {are} robots, its limit; "
-                "try again after Retry-After seconds."
-            )
-        now = self._shell.mono() if now is None else now
-        waited = now - next(iter(self._waiting.values()))
-        if waited > self.settings.busy_after:
-            return Busy(
-                f"this cloud is busy: {waiting} requests are waiting for their robots, the "
-                f"oldest for {waited:.2f} s (over {self.settings.busy_after:g} s); try again "
-                "after Retry-After seconds."
-            )
-        return None
 
     async def get(self, application: str, request_id: str) -> RequestRecord:
         if not REQUEST_ID.fullmatch(request_id):
@@ -377,43 +349,20 @@ class RequestService:
         return (member.phase, member.progress) if member is not None else None
 
     def request_of(self, robot_id: str) -> str | None:
-        return self._routes.get(robot_id)
+        return self.routes.request_of(robot_id)
 
     def coalition_robots(self, request_id: str) -> list[str]:
         """The robots working for a request now (what the homes of remote robots ask)."""
-        actor = self._actors.get(request_id)
-        if actor is None:
-            return []
-        robots = {m.robot for m in actor.life.followed()}
-        attempt = actor.life.attempt
-        if attempt is not None:
-            robots |= {m.robot for m in attempt.chosen}
-        return sorted(robots)
+        return self.routes.robots_of(request_id)
 
     def current(self, request_id: str) -> lc.Life | None:
         """The live life of an active request (its members' phases), if this process runs it."""
         actor = self._actors.get(request_id)
         return actor.life if actor is not None else None
 
-    async def events(self, application: str, request_id: str) -> AsyncIterator[RequestRecord]:
+    def events(self, application: str, request_id: str) -> AsyncIterator[RequestRecord]:
         """The request now, then after each change, until it is final."""
-        queue: asyncio.Queue[RequestRecord | None] = asyncio.Queue()
-        self._listeners.setdefault(request_id, set()).add(queue)
-        try:
-            record = await self.get(application, request_id)
-            yield record
-            while not is_final(record.state):
-                update = await queue.get()
-                if update is None:
-                    return
-                record = update
-                yield record
-        finally:
-            queues = self._listeners.get(request_id)
-            if queues is not None:
-                queues.discard(queue)
-                if not queues:
-                    del self._listeners[request_id]
+        return self.feed.follow(request_id, lambda: self.get(application, request_id))
 
     def loan_ended(self, request_id: str, robot: str, home: str, why: str) -> None:
         """A robot's home ended its loan to one of our requests on its own (any thread).
@@ -444,9 +393,8 @@ class RequestService:
 
     def _publish(self, record: RequestRecord) -> None:
         if record.state not in UNDECIDED:
-            self._waiting.pop(record.id, None)
-        for queue in self._listeners.get(record.id, ()):
-            queue.put_nowait(record)
+            self.admission.decided(record.id)
+        self.feed.publish(record)
 
     def _post(self, request_id: str, event: lc.Event) -> None:
         actor = self._actors.get(request_id)
@@ -454,7 +402,7 @@ class RequestService:
             actor.post(event)
 
     def _member(self, robot_id: str) -> lc.Member | None:
-        request_id = self._routes.get(robot_id)
+        request_id = self.routes.request_of(robot_id)
         actor = self._actors.get(request_id) if request_id is not None else None
         if actor is None:
             return None
@@ -463,82 +411,21 @@ class RequestService:
                 return member
         return None
 
-    def _follow(self, request_id: str, robots: lc.Pairs) -> None:
-        for robot, cloud in robots:
-            self._routes[robot] = request_id
-            self.view.watch(robot, cloud)
-
-    def _unfollow(self, request_id: str, robots: lc.Pairs) -> None:
-        for robot, cloud in robots:
-            if self._routes.get(robot) == request_id:
-                del self._routes[robot]
-                self.view.unwatch(robot, cloud)
-
-    def _claim(self, request_id: str, robots: Iterable[str]) -> None:
-        for robot in robots:
-            self._claims[robot] = request_id
-
-    def _unclaim(self, request_id: str, robots: Iterable[str]) -> None:
-        for robot in robots:
-            if self._claims.get(robot) == request_id:
-                del self._claims[robot]
-
-    def _forget_routes(self, request_id: str) -> None:
-        for held in (self._routes, self._claims):
-            for robot in [r for r, rid in held.items() if rid == request_id]:
-                del held[robot]
-
     def _state_from_thread(self, state: State) -> None:
         """Called on Zenoh's threads for every state message; hops to the loop when it matters."""
         loop = self._loop
         if loop is None:
             return
-        working = state.task is not None and state.task.phase in WORKING
-        if state.id in self._routes or (working and state.cloud == self.settings.cloud):
+        if self.routes.request_of(state.id) is not None or self.strays.may_be_stray(
+            state, self.settings.cloud
+        ):
             loop.call_soon_threadsafe(self._on_state, state)
 
     def _on_state(self, state: State) -> None:
-        request_id = self._routes.get(state.id)
+        request_id = self.routes.request_of(state.id)
         if request_id is not None:
             self._post(request_id, report_for(state, request_id))
-        task = state.task
-        if (
-            task is not None
-            and task.phase in WORKING
-            and state.cloud == self.settings.cloud
-            and task.request_id != request_id
-        ):
-            self._tell_to_stop(state.id, task.request_id)
-
-    def _tell_to_stop(self, robot: str, request_id: str) -> None:
-        now = time.monotonic()
-        key = (robot, request_id)
-        if now - self._told.get(key, -TELL_AGAIN_AFTER) < TELL_AGAIN_AFTER:
-            return
-        self._told[key] = now
-        if len(self._told) > 1000:  # bounded: forget what is long past
-            self._told = {k: t for k, t in self._told.items() if now - t < 10 * TELL_AGAIN_AFTER}
-        self._spawn(self._reconcile(robot, request_id), f"telling robot {robot} to stop")
-
-    async def _reconcile(self, robot: str, request_id: str) -> None:
-        if not self._works_for(robot, request_id):
-            return  # a report that was overtaken: the robot has moved on
-        if await self.blocking(self.lent_for, robot) == request_id:
-            return  # lent to another cloud for that request
-        if self._routes.get(robot) == request_id or not self._works_for(robot, request_id):
-            return  # followed, or done, meanwhile
-        log.warning(
-            "robot %s reports work on request %s, which is not active for it; telling it to stop",
-            robot,
-            request_id,
-        )
-        await self.blocking(self.link.cancel, robot, request_id)
-
-    def _works_for(self, robot: str, request_id: str) -> bool:
-        """Whether the robot's latest state says it is working on the request."""
-        state = self.link.state(robot)
-        task = state.task if state is not None else None
-        return task is not None and task.request_id == request_id and task.phase in WORKING
+        self.strays.check(state)
 
     # -- restart ------------------------------------------------------------------------
 
@@ -562,7 +449,7 @@ class RequestService:
             life = lc.life_of(record.id, task, record.state, record.selection, self._shell.rules)
             if record.state in UNDECIDED:
                 # Waiting for its robots again, from now: counted by ``busy``.
-                self._waiting[record.id] = self._shell.mono()
+                self.admission.waits(record.id)
             self._start(record, life, lc.Start(resumed=True))
 
 
@@ -582,13 +469,16 @@ def most_workers(kept: int, cores: int | None = None) -> int:
 def report_for(state: State, request_id: str) -> lc.RobotReport:
     """A robot's state, read for one request."""
     task, last = state.task, state.last_task
+    ours = task if task is not None and task.request_id == request_id else None
+    last = last if last is not None and last.request_id == request_id else None
     return lc.RobotReport(
         robot=state.id,
         status=state.status,
         battery=state.battery,
-        phase=task.phase if task is not None and task.request_id == request_id else None,
-        progress=task.progress if task is not None and task.request_id == request_id else 0.0,
-        last_phase=last.phase if last is not None and last.request_id == request_id else None,
+        phase=ours.phase if ours is not None else None,
+        progress=ours.progress if ours is not None else 0.0,
+        last_phase=last.phase if last is not None else None,
+        reason=said.reason if (said := ours or last) is not None else None,
     )
 
 

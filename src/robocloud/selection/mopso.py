@@ -46,6 +46,7 @@ import numpy as np
 import numpy.typing as npt
 
 from robocloud.domain import Coalition
+from robocloud.domain.numeric import margin_array
 from robocloud.errors import InvalidInput
 from robocloud.selection.budget import NO_DEADLINE, Deadline
 from robocloud.selection.mopso_repository import Repository, dominates_rows
@@ -166,8 +167,8 @@ def mopso_search(
     pool = _checked_pool(problem, pool)
     # A robot slower or dearer on its own than the thresholds is in no
     # feasible coalition; one that brings nothing is in no minimal one.
-    time_tol = np.maximum(1e-6, 1e-9 * np.abs(problem.time[pool]))
-    cost_tol = np.maximum(1e-6, 1e-9 * np.abs(problem.cost[pool]))
+    time_tol = margin_array(problem.time[pool])
+    cost_tol = margin_array(problem.cost[pool])
     useful = (
         (problem.time[pool] <= problem.max_time + time_tol)
         & (problem.cost[pool] <= problem.max_cost + cost_tol)
@@ -364,7 +365,7 @@ class _Swarm:
         down, C up), as the exact optimizer's sweep does.
         """
         time, _, _ = self.problem.evaluate(position)
-        margin = np.maximum(1e-6, 1e-9 * np.abs(time))
+        margin = margin_array(time)
         loose = time + margin
         order, starts, of = self.class_order, self.class_starts, self.class_of
         held = np.add.reduceat(position[:, order].astype(np.int64), starts, axis=1)

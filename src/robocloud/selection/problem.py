@@ -19,6 +19,7 @@ import numpy as np
 import numpy.typing as npt
 
 from robocloud.domain import Coalition, RobotLike, Task
+from robocloud.domain.numeric import margin_array
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
@@ -173,8 +174,8 @@ class CoalitionProblem:
     def feasible(self, members: BoolArray) -> BoolArray:
         """MODEL.md's feasibility, with the thresholds compared under the tolerance."""
         time, cost, size = self.evaluate(members)
-        tol_t = np.maximum(1e-6, 1e-9 * np.abs(time))
-        tol_c = np.maximum(1e-6, 1e-9 * np.abs(cost))
+        tol_t = margin_array(time)
+        tol_c = margin_array(cost)
         return np.asarray(
             self.covers(members)
             & (size <= self.max_robots)

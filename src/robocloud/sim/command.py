@@ -17,7 +17,8 @@ import sys
 import threading
 from collections.abc import Sequence
 
-from robocloud.errors import InvalidInput, RoboCloudError
+from robocloud.cli.exits import run
+from robocloud.errors import InvalidInput
 from robocloud.federation import security
 from robocloud.fleet import keys
 from robocloud.sim.fleet import run_simulator
@@ -136,11 +137,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     add_sim_arguments(parser)
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    try:
-        return sim_command(args)
-    except RoboCloudError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
+    return run(sim_command, args, "robocloud sim")
 
 
 if __name__ == "__main__":

@@ -14,8 +14,8 @@ for them but a few counters. The names (docs/metrics.md):
 from __future__ import annotations
 
 import argparse
-from collections.abc import Iterator
-from typing import TYPE_CHECKING
+from collections.abc import Iterator, Mapping
+from typing import TYPE_CHECKING, Protocol
 
 from prometheus_client import CollectorRegistry, start_http_server
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily
@@ -24,13 +24,26 @@ from prometheus_client.registry import Collector
 if TYPE_CHECKING:
     from prometheus_client.metrics_core import Metric
 
-    from robocloud.sim.fleet import FleetSimulator
-
 STATUSES = ("idle", "reserved", "busy", "charging", "offline")
 
 
+class Counted(Protocol):
+    """What a scrape reads of the simulator (``robocloud.sim.fleet.FleetSimulator``)."""
+
+    @property
+    def states_published(self) -> int: ...
+    @property
+    def commands_answered(self) -> Mapping[tuple[str, str], int]: ...
+    @property
+    def ticks(self) -> int: ...
+    @property
+    def late_ticks(self) -> int: ...
+
+    def status_counts(self) -> Mapping[str, int]: ...
+
+
 class SimulatorCollector(Collector):
-    def __init__(self, simulator: FleetSimulator) -> None:
+    def __init__(self, simulator: Counted) -> None:
         self.simulator = simulator
 
     def collect(self) -> Iterator[Metric]:
@@ -73,7 +86,7 @@ def metrics_address(text: str) -> tuple[str, int]:
     return host.strip("[]") or "127.0.0.1", int(port)
 
 
-def serve_metrics(simulator: FleetSimulator, host: str, port: int) -> None:
+def serve_metrics(simulator: Counted, host: str, port: int) -> None:
     """Serve ``/metrics`` of ``simulator`` on ``host:port`` from a daemon thread."""
     registry = CollectorRegistry(auto_describe=False)
     registry.register(SimulatorCollector(simulator))

@@ -58,7 +58,7 @@ from robocloud.wildfire.config import WildfireSettings
 from robocloud.wildfire.feed import LiveFeed, TooManyPages
 from robocloud.wildfire.iaas_client import IaasBusy, IaasError, IaasUnreachable
 from robocloud.wildfire.iaas_pool import Endpoint, IaasPool
-from robocloud.wildfire.live import LiveModel, request_summary
+from robocloud.wildfire.live import LiveModel, one_line, request_summary
 from robocloud.wildfire.metrics import WildfireMetrics
 
 log = logging.getLogger(__name__)
@@ -242,14 +242,20 @@ def _api() -> APIRouter:
             body = await _bounded_body(request)
             _check_task(body, model)
             record, endpoint = await pool.create_request(body, idempotency_key)
-        except IaasUnreachable:
+        except IaasUnreachable as error:
             sends.labels("unknown").inc()
+            log.warning("a request may not have reached the IaaS (the page sends it again): %s",
+                        one_line(error.detail))
             raise
         except IaasError as error:
             sends.labels("refused" if error.status < 500 else "failed").inc()
+            log.log(logging.INFO if error.status < 500 else logging.WARNING,
+                    "a request was refused (%d): %s", error.status, one_line(error.detail))
             raise
         sends.labels("accepted").inc()
         model.ingest_request(record, endpoint.cloud, time.time())
+        log.info("request %s sent to %s: %s.", one_line(str(record.get("id"))), endpoint.name(),
+                 one_line(str(record.get("state"))))
         return JSONResponse(_with_home(record, endpoint), status_code=202)
 
     @router.get("/requests/{request_id}")
@@ -261,6 +267,8 @@ def _api() -> APIRouter:
     @router.post("/requests/{request_id}/cancel")
     async def cancel_request(request_id: str, pool: Pool, model: Model) -> dict[str, Any]:
         record, endpoint = await pool.cancel_request(request_id)
+        log.info("request %s canceled by the operator at %s.", one_line(request_id),
+                 endpoint.name())
         model.ingest_request(record, endpoint.cloud, time.time())
         return _with_home(record, endpoint)
 

@@ -22,7 +22,8 @@ import sys
 from collections.abc import Mapping, Sequence
 from urllib.parse import urlsplit
 
-from robocloud.errors import InvalidInput, RoboCloudError
+from robocloud.cli.exits import run
+from robocloud.errors import InvalidInput
 from robocloud.wildfire.config import MAX_CURRENCY_CHARS, Forest, WildfireSettings
 
 API_KEY_ENV = "ROBOCLOUD_WILDFIRE_API_KEY"
@@ -109,6 +110,28 @@ def add_wildfire_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
+class _AtDebug(logging.Filter):
+    """httpx logs each call at INFO; here it is a DEBUG line."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.levelno == logging.INFO:
+            record.levelno, record.levelname = logging.DEBUG, "DEBUG"
+        return True
+
+
+def quiet_iaas_calls(debug: bool) -> None:
+    """Each call to an IaaS (httpx's "HTTP Request: ..." line) only at DEBUG.
+
+    The page polls every tick: at INFO those lines were nearly the whole log
+    (issue 26: 444 KB in 8 minutes). INFO says what happened to requests and
+    clouds instead (``robocloud.wildfire.live``).
+    """
+    calls = logging.getLogger("httpx")
+    calls.setLevel(logging.DEBUG if debug else logging.WARNING)
+    if not any(isinstance(f, _AtDebug) for f in calls.filters):
+        calls.addFilter(_AtDebug())
+
+
 def page_url(host: str, port: int) -> str:
     shown = f"[{host}]" if ":" in host else host
     return f"http://{shown}:{port}/"
@@ -129,6 +152,7 @@ def wildfire_command(args: argparse.Namespace, environ: Mapping[str, str] | None
         level=args.log_level.upper(),
         format="%(asctime)s wildfire %(levelname)s %(name)s: %(message)s",
     )
+    quiet_iaas_calls(args.log_level == "debug")
     if len(set(args.iaas)) != len(args.iaas):
         raise InvalidInput("an --iaas URL is given twice.", "--iaas")
     if api_key is None:
@@ -166,13 +190,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     add_wildfire_arguments(parser)
     args = parser.parse_args(argv)
-    try:
-        return wildfire_command(args)
-    except RoboCloudError as error:
-        print(f"robocloud wildfire: {error}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        return 130
+    return run(wildfire_command, args, "robocloud wildfire")
 
 
 if __name__ == "__main__":

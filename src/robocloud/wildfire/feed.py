@@ -5,6 +5,8 @@ app's lifespan:
 
 - one per IaaS: its health, then (when it answers) its newest requests and
   any unfinished request of it not read lately, into the model (alerts);
+  until one IaaS has given them, the task's bounds from its OpenAPI document
+  (``task_limits.py``), tried again a minute later where it failed;
 - the fleet: the robots and the live clouds, read from the first IaaS that
   answers (one read for every page, however many are open);
 - the publisher: the model's delta, sent to every open page.
@@ -28,6 +30,7 @@ from dataclasses import dataclass, field
 from robocloud.wildfire.iaas_client import IaasError
 from robocloud.wildfire.iaas_pool import Endpoint, IaasPool
 from robocloud.wildfire.live import LiveModel, dumps
+from robocloud.wildfire.task_limits import task_limits
 
 log = logging.getLogger(__name__)
 
@@ -35,6 +38,8 @@ NEWEST_REQUESTS = 20
 # Unfinished requests beyond the newest are read one by one, this many a tick at most.
 SINGLE_READS_PER_TICK = 10
 QUEUE_LENGTH = 30
+# An IaaS whose OpenAPI document gave no task bounds is asked again this much later.
+SCHEMA_RETRY_S = 60.0
 
 
 class TooManyPages(Exception):
@@ -67,6 +72,7 @@ class LiveFeed:
         self.clock = clock
         self.subscribers: set[Subscriber] = set()
         self.sent_bytes = 0  # to every page, compressed: the field link's cost
+        self._schema_due: dict[int, float] = {}  # endpoint index -> when to ask for its schema
 
     async def run(self) -> None:
         async with asyncio.TaskGroup() as group:
@@ -91,6 +97,8 @@ class LiveFeed:
         if not endpoint.ok:
             return
         timeout = self.settings.poll_timeout
+        if self.model.limits is None:
+            await self.read_limits(endpoint)
         try:
             page = await endpoint.client.list_requests({"limit": str(NEWEST_REQUESTS)}, timeout)
         except IaasError as error:
@@ -117,6 +125,19 @@ class LiveFeed:
                     return
                 continue
             self.model.ingest_request(record, endpoint.cloud, self.clock())
+
+    async def read_limits(self, endpoint: Endpoint) -> None:
+        """The task's bounds, from this IaaS's OpenAPI document, for the page's form."""
+        now = time.monotonic()
+        if now < self._schema_due.get(endpoint.index, 0.0):
+            return
+        self._schema_due[endpoint.index] = now + SCHEMA_RETRY_S
+        try:
+            spec = await endpoint.client.openapi(self.settings.poll_timeout)
+        except IaasError as error:
+            log.debug("no task bounds from %s: %s", endpoint.url, error.detail)
+            return
+        self.model.limits = task_limits(spec)
 
     async def read_fleet(self) -> None:
         primary = self.pool.primary()

@@ -90,6 +90,10 @@ class IaasClient:
     async def health(self, timeout: float | None = None) -> dict[str, Any]:
         return _object(await self._call("GET", "/healthz", timeout=timeout), self.base_url)
 
+    async def openapi(self, timeout: float | None = None) -> dict[str, Any]:
+        """The IaaS's OpenAPI document (open, like ``/healthz``): the task's bounds."""
+        return _object(await self._call("GET", "/openapi.json", timeout=timeout), self.base_url)
+
     async def clouds(self, timeout: float | None = None) -> list[Any]:
         return _list(await self._call("GET", "/v1/clouds", timeout=timeout), self.base_url)
 

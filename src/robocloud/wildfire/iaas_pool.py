@@ -30,6 +30,7 @@ from typing import Any
 
 import httpx
 
+from robocloud.domain.request import REQUEST_STATES
 from robocloud.wildfire.config import WildfireSettings
 from robocloud.wildfire.iaas_client import (
     REQUEST_ID,
@@ -42,10 +43,6 @@ from robocloud.wildfire.iaas_client import (
 MAX_REMEMBERED = 20_000
 MAX_PINNED_KEYS = 10_000
 MAX_LIST_LIMIT = 200
-REQUEST_STATES = (
-    "received", "selecting", "dispatched", "underway", "completed", "rejected", "canceled",
-    "failed",
-)
 CURSOR_PART = re.compile(r"(\d{1,3}):(-|" + REQUEST_ID.pattern + r")")
 EXHAUSTED = "-"
 

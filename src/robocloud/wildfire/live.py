@@ -20,6 +20,7 @@ rejected. Only what happens after the server started is alerted.
 from __future__ import annotations
 
 import json
+import logging
 import re
 import zlib
 from collections import deque
@@ -28,8 +29,15 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from typing import Any
 
+from robocloud.domain.request import FINAL_STATES, REQUEST_STATES
 from robocloud.wildfire.config import WildfireSettings
 from robocloud.wildfire.fleet_view import capability_kinds
+
+log = logging.getLogger(__name__)
+# How each alert level is logged: the operator's log says what the page says.
+LOG_LEVELS = {"danger": logging.WARNING, "warning": logging.WARNING, "info": logging.INFO,
+              "ok": logging.INFO}
+CONTROL = re.compile(r"[\x00-\x1f\x7f]")
 
 ROBOT_COLUMNS = (
     "id", "cloud", "status", "x", "y", "battery", "capabilities", "request", "phase",
@@ -37,7 +45,6 @@ ROBOT_COLUMNS = (
 )
 COLUMN = {name: i for i, name in enumerate(ROBOT_COLUMNS)}
 STATUSES = ("idle", "reserved", "busy", "charging", "offline")
-FINAL_STATES = frozenset({"completed", "rejected", "canceled", "failed"})
 # Colour-blind-safe colours (Okabe-Ito, then Tol). A cloud's colour comes from
 # its name (CRC-32), the next free one on a clash: the same on every page and
 # every load, whichever robot is heard first.
@@ -157,6 +164,7 @@ class LiveModel:
         self.fleet_at = 0.0
         self.endpoints: list[dict[str, Any]] = []
         self.time_scale: float | None = None
+        self.limits: dict[str, dict[str, float]] | None = None  # the task's, from the IaaS's schema
         self.alerts: deque[Alert] = deque(maxlen=MAX_ALERTS)
         self.requests: dict[str, Followed] = {}
         self._next_alert = 1
@@ -227,6 +235,10 @@ class LiveModel:
             self._changed_requests.add(request_id)
             self._evict_requests()
         elif followed.summary != summary:
+            if summary["state"] != followed.summary["state"] and summary["state"] not in (
+                "failed", "rejected"  # those are alerts, logged as such
+            ):
+                log.info("%s is %s.", one_line(_request_name(summary)), summary["state"])
             followed.summary = summary
             self._changed_requests.add(request_id)
         followed.checked = at
@@ -245,6 +257,7 @@ class LiveModel:
     def alert(self, level: str, kind: str, text: str, at: float, *, cloud: str | None = None,
               request: str | None = None) -> Alert:
         alert = Alert(self._next_alert, at, level, kind, humanize(text), cloud, request)
+        log.log(LOG_LEVELS.get(level, logging.INFO), "%s", one_line(alert.text))
         self._next_alert += 1
         self.alerts.append(alert)
         self._new_alerts.append(alert)
@@ -400,7 +413,10 @@ class LiveModel:
     def config_json(self) -> dict[str, Any]:
         s = self.settings
         return {"forest": s.forest.as_json(), "currency": s.currency, "time_scale": self.time_scale,
-                "stale_after": s.stale_after, "tick": s.tick, "iaas": list(s.iaas)}
+                "stale_after": s.stale_after, "tick": s.tick, "iaas": list(s.iaas),
+                "limits": self.limits,
+                "states": {"all": list(REQUEST_STATES),
+                           "final": [s for s in REQUEST_STATES if s in FINAL_STATES]}}
 
     def publish(self, now: float) -> dict[str, Any]:
         """What changed since the last call, as one delta; the published state moves on."""
@@ -541,6 +557,11 @@ MAX_ALERT_CHARS = 400
 def humanize(text: str) -> str:
     words = FIELD_WORDS.sub(lambda m: m.group(1).replace("_", " "), text)
     return words if len(words) <= MAX_ALERT_CHARS else words[: MAX_ALERT_CHARS - 1] + "…"
+
+
+def one_line(text: str) -> str:
+    """Text from elsewhere (an IaaS's sentence, a label) as one log line no one can forge."""
+    return CONTROL.sub(lambda m: f"\\x{ord(m.group()):02x}", text)
 
 
 def _request_name(summary: Mapping[str, Any]) -> str:

@@ -3,7 +3,9 @@
 ::
 
     robocloud vda5050 --cloud cloud-a --connect tcp/127.0.0.1:7447 --mqtt 127.0.0.1:1883 \\
-                      [--interface uagv] [--major v2] [--capabilities agvs.json]
+                      [--interface uagv] [--major v2] [--capabilities agvs.json] \\
+                      [--accept-within 5] [--reconcile-grace 5] [--state-interval 10] \\
+                      [--metrics 9102]
 
 It runs until interrupted (Ctrl-C or SIGTERM). Every argument is checked, and
 the capabilities file read, before anything is opened.
@@ -20,8 +22,10 @@ from typing import TYPE_CHECKING
 
 from robocloud.errors import InvalidInput
 from robocloud.federation import security
+from robocloud.gateways.vda5050.agv import Timing
 from robocloud.gateways.vda5050.capabilities import GatewayCapabilities, load_capabilities
 from robocloud.gateways.vda5050.messages import MAJOR
+from robocloud.sim.metrics import metrics_address
 
 if TYPE_CHECKING:
     from robocloud.gateways.vda5050.zenoh_side import CommandHandler
@@ -76,15 +80,46 @@ def add_vda5050_arguments(parser: argparse.ArgumentParser) -> None:
         "all and their states on robocloud/<cloud>/fleets/NAME/states (default: the keys "
         "of a robot for each AGV)",
     )
+    defaults = Timing()
+    parser.add_argument(
+        "--accept-within",
+        type=float,
+        default=defaults.accept_within,
+        metavar="SECONDS",
+        help="an order whose orderId and orderUpdateId the AGV's state has not shown within "
+        f"this time is cancelled and its task failed (default {defaults.accept_within:g})",
+    )
+    parser.add_argument(
+        "--reconcile-grace",
+        type=float,
+        default=defaults.reconcile_grace,
+        metavar="SECONDS",
+        help="an AGV found on a robocloud order this gateway did not send gets cancelOrder "
+        "unless the IaaS assigns that request to it within this time (default "
+        f"{defaults.reconcile_grace:g})",
+    )
+    parser.add_argument(
+        "--state-interval",
+        type=float,
+        default=defaults.state_interval,
+        metavar="SECONDS",
+        help="an AGV's state interval when its factsheet has no defaultStateInterval; silent "
+        f"for {defaults.silent_intervals:g} intervals (at most {defaults.max_silence:g} s) it "
+        f"is offline (default {defaults.state_interval:g})",
+    )
+    parser.add_argument(
+        "--metrics",
+        type=metrics_address,
+        metavar="HOST:PORT",
+        help="serve Prometheus metrics at http://HOST:PORT/metrics (docs/metrics.md)",
+    )
     security.add_arguments(parser, router=False)
 
 
 def mqtt_address(text: str) -> tuple[str, int]:
     host, sep, port = text.rpartition(":")
     if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
-        raise InvalidInput(
-            f"--mqtt {text!r} is not HOST:PORT, e.g. {DEFAULT_MQTT}.", "--mqtt"
-        )
+        raise InvalidInput(f"--mqtt {text!r} is not HOST:PORT, e.g. {DEFAULT_MQTT}.", "--mqtt")
     return host.strip("[]"), int(port)
 
 
@@ -117,8 +152,25 @@ def check_arguments(args: argparse.Namespace) -> tuple[tuple[str, int], GatewayC
             f"--connect-timeout must be 0 to 3600 s, not {args.connect_timeout}.",
             "--connect-timeout",
         )
+    for flag, value, top in (
+        ("--accept-within", args.accept_within, 600.0),
+        ("--reconcile-grace", args.reconcile_grace, 600.0),
+        ("--state-interval", args.state_interval, 30.0),
+    ):
+        if not 0 < value <= top:  # also refuses nan
+            raise InvalidInput(
+                f"{flag} must be more than 0 and at most {top:g} s, not {value}.", flag
+            )
     security.from_arguments(args)
     return address, load_capabilities(args.capabilities)
+
+
+def timing(args: argparse.Namespace) -> Timing:
+    return Timing(
+        accept_within=args.accept_within,
+        reconcile_grace=args.reconcile_grace,
+        state_interval=args.state_interval,
+    )
 
 
 def vda5050_command(args: argparse.Namespace) -> int:
@@ -174,8 +226,13 @@ def run_gateway(
             capabilities,
             interface=args.interface,
             major=args.major,
+            timing=timing(args),
         )
         gateway.start(timeout=max(args.connect_timeout, 1.0))
+        if args.metrics is not None:
+            from robocloud.gateways.vda5050.metrics import serve_metrics
+
+            serve_metrics(gateway, *args.metrics)
         print(
             f"VDA 5050 gateway: the AGVs of {args.mqtt} ({args.interface}/{args.major}) are "
             f"robots of {args.cloud} at {', '.join(args.connect)}; Ctrl-C stops",

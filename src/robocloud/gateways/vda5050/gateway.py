@@ -12,9 +12,13 @@ first state with a position has arrived, publishes a state at least twice a
 second and at once when its status or its task's phase changes, and is
 dropped after ``FORGET_AFTER`` seconds offline. An assign becomes an order
 (``messages.order``) and is acknowledged ok once the AGV's state shows it, or
-after ``ACCEPT_WAIT`` seconds without a word against it; a cancel becomes the
-instant action ``cancelOrder``. An AGV without a factsheet is asked for one
-(``factsheetRequest``).
+after ``ACCEPT_WAIT`` seconds without a word against it; the task fails (and
+the order is cancelled) if the AGV's state has not shown it within
+``Timing.accept_within``. A cancel becomes the instant action ``cancelOrder``.
+An AGV without a factsheet is asked for one (``factsheetRequest``). What the
+AGV says is checked as ``agv.py`` tells (order of states, acceptance,
+reconciliation after a restart, liveliness); the counts are the gateway's
+metrics (``metrics.py``).
 
 Callbacks come on paho's network thread (MQTT) and on Zenoh's threads
 (commands); one condition guards the AGVs, and nothing is sent while it is
@@ -32,6 +36,7 @@ import secrets
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import paho.mqtt.client as mqtt
@@ -44,7 +49,7 @@ from robocloud.fleet import keys
 from robocloud.fleet.behaviour import refuse_cancel
 from robocloud.fleet.messages import Ack, Assign, Cancel, State
 from robocloud.gateways.vda5050 import messages as vda
-from robocloud.gateways.vda5050.agv import Agv, BadMessage
+from robocloud.gateways.vda5050.agv import Agv, BadMessage, Stale, Timing
 from robocloud.gateways.vda5050.capabilities import GatewayCapabilities
 from robocloud.gateways.vda5050.zenoh_side import CommandHandler, RobotSide
 
@@ -64,6 +69,14 @@ MODELS: dict[str, type[pydantic.BaseModel]] = {
     "factsheet": vda.Factsheet,
     "visualization": vda.Visualization,
 }
+
+
+@dataclass(frozen=True)
+class Numbers:
+    statuses: dict[str, int]
+    stale: int
+    not_accepted: int
+    reconcile_cancels: int
 
 
 def robot_id(name: vda.AgvName) -> str | None:
@@ -96,6 +109,7 @@ class Vda5050Gateway:
         major: str = vda.MAJOR,
         clock: Callable[[], float] = time.monotonic,
         wall: Callable[[], float] = time.time,
+        timing: Timing | None = None,
     ) -> None:
         self.robots = robots(self._on_command)
         self.cloud = self.robots.cloud
@@ -103,6 +117,11 @@ class Vda5050Gateway:
         self.capabilities = capabilities
         self.interface, self.major = interface, major
         self.clock, self.wall = clock, wall
+        self.timing = timing or Timing()
+        # Counters of the AGVs' misdeeds (metrics.py); written under ``_changed``.
+        self.stale_states = 0
+        self.orders_not_accepted = 0
+        self.reconcile_cancels = 0
         self._agvs: dict[vda.AgvName, Agv] = {}
         self._by_robot: dict[str, Agv] = {}
         self._changed = threading.Condition()
@@ -142,6 +161,10 @@ class Vda5050Gateway:
         self._thread = threading.Thread(target=self._loop, name="vda5050-publish", daemon=True)
         self._thread.start()
 
+    @property
+    def running(self) -> bool:
+        return self._thread is not None
+
     def stop(self) -> None:
         self._stop.set()
         if self._thread is not None:
@@ -161,6 +184,19 @@ class Vda5050Gateway:
     def robot_ids(self) -> list[str]:
         with self._changed:
             return sorted(self._by_robot)
+
+    def numbers(self) -> Numbers:
+        """The counts of metrics.py, now."""
+        now = self.clock()
+        with self._changed:
+            statuses: dict[str, int] = {}
+            for agv in self._agvs.values():
+                if agv.vda is not None:
+                    status = agv.status(now)
+                    statuses[status] = statuses.get(status, 0) + 1
+            return Numbers(
+                statuses, self.stale_states, self.orders_not_accepted, self.reconcile_cancels
+            )
 
     # -- MQTT in --------------------------------------------------------------------
 
@@ -211,23 +247,26 @@ class Vda5050Gateway:
             agv = self._agv(name, topic)
             if agv is None:
                 return
-            now = self.clock()
+            now, wall = self.clock(), self.wall()
             if isinstance(message, vda.Connection):
                 agv.on_connection(message.connectionState, now)
             elif isinstance(message, vda.VdaState):
-                agv.on_state(message, now)
+                try:
+                    agv.on_state(message, now, wall)
+                except Stale:
+                    self.stale_states += 1
+                    raise
             elif isinstance(message, vda.Factsheet):
-                agv.on_factsheet(message)
+                agv.on_factsheet(message, now, wall)
             elif isinstance(message, vda.Visualization):
-                agv.on_visualization(message.agvPosition)
+                agv.on_visualization(message.agvPosition, now, wall)
             if agv.factsheet is None and agv.connection == "ONLINE":
                 ask_factsheet = now - agv.factsheet_asked > FACTSHEET_AGAIN
                 if ask_factsheet:
                     agv.factsheet_asked = now
-            notes, agv.notes = agv.notes, []
+            notes, cancels = self._drain(agv)
             self._changed.notify_all()
-        for note in notes:
-            log.warning("%s", note)
+        self._tell(notes, cancels)
         if ask_factsheet:
             self._send(name, "instantActions", vda.factsheet_request(
                 self._headers.header(name, "instantActions", self.wall()),
@@ -259,7 +298,7 @@ class Vda5050Gateway:
         if len(self._agvs) >= MAX_AGVS:
             self._complain("max", f"ignoring {topic}: the gateway has {MAX_AGVS} AGVs already.")
             return None
-        agv = Agv(name, rid)
+        agv = Agv(name, rid, self.timing)
         self._agvs[name] = agv
         self._by_robot[rid] = agv
         return agv
@@ -273,6 +312,29 @@ class Vda5050Gateway:
                 self._complained.clear()
             self._complained[topic] = now
         log.warning("%s", sentence)
+
+    def _drain(self, agv: Agv) -> tuple[list[str], list[tuple[vda.AgvName, str, str]]]:
+        """What ``agv`` asks to log and to cancel, and its counts (the caller holds the lock)."""
+        notes, agv.notes = agv.notes, []
+        cancels = [(agv.name, order, why) for order, why in agv.cancels]
+        agv.cancels = []
+        self.orders_not_accepted += agv.not_accepted
+        agv.not_accepted = 0
+        self.reconcile_cancels += len(cancels)
+        return notes, cancels
+
+    def _tell(self, notes: list[str], cancels: list[tuple[vda.AgvName, str, str]]) -> None:
+        """Log the notes and send the cancelOrders (the lock is not held)."""
+        for note in notes:
+            log.warning("%s", note)
+        for name, order, why in cancels:
+            header = self._headers.header(name, "instantActions", self.wall())
+            self._send(name, "instantActions", vda.cancel_order(
+                header, f"{order}-cancel-{secrets.token_hex(2)}"))  # fmt: skip
+            log.warning(
+                "AGV %s.%s: sent cancelOrder for order %s: %s",
+                name.manufacturer, name.serial, order, why,
+            )  # fmt: skip
 
     # -- MQTT out -------------------------------------------------------------------
 
@@ -301,6 +363,7 @@ class Vda5050Gateway:
                 order_id = job.order_id if job is not None else agv.still_running(rid)
                 if order_id is None:
                     return Ack(ok=True, robot=robot, request_id=rid)
+                agv.cancelling(order_id, now)
                 header = self._headers.header(agv.name, "instantActions", self.wall())
                 message = vda.cancel_order(header, f"{order_id}-cancel-{secrets.token_hex(2)}")
                 name = agv.name
@@ -345,6 +408,8 @@ class Vda5050Gateway:
         now, wall = self.clock(), self.wall()
         states: list[State] = []
         gone: list[str] = []
+        notes: list[str] = []
+        cancels: list[tuple[vda.AgvName, str, str]] = []
         with self._changed:
             for name, agv in list(self._agvs.items()):
                 if agv.offline_since is not None and now - agv.offline_since > FORGET_AFTER:
@@ -352,6 +417,9 @@ class Vda5050Gateway:
                     gone.append(agv.robot_id)
                     continue
                 agv.tick(now)
+                said, due = self._drain(agv)
+                notes += said
+                cancels += due
                 if not agv.dirty and now - agv.published_at < PUBLISH_EVERY:
                     continue
                 state = agv.state(self.cloud, self.capabilities, now, wall)
@@ -359,6 +427,7 @@ class Vda5050Gateway:
                     continue
                 agv.dirty, agv.published_at = False, now
                 states.append(state)
+        self._tell(notes, cancels)
         for robot in gone:
             log.info("forgot AGV %s, offline for over %.0f s", robot, FORGET_AFTER)
             self.robots.remove(robot)

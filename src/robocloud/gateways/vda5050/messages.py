@@ -120,7 +120,10 @@ class VdaState(BaseModel):
 
     model_config = _LENIENT
 
+    headerId: int = Field(ge=0)
+    timestamp: dt.datetime
     orderId: str
+    orderUpdateId: int = Field(ge=0)
     lastNodeId: str = ""
     nodeStates: list[NodeState]
     edgeStates: list[dict[str, Any]]
@@ -136,6 +139,16 @@ class VdaState(BaseModel):
             if state.actionId == action_id:
                 return state
         return None
+
+    def sent_at(self) -> float:
+        """``timestamp`` as unix seconds; one without a zone is taken as UTC."""
+        moment = self.timestamp
+        if moment.tzinfo is None:
+            moment = moment.replace(tzinfo=dt.UTC)
+        return moment.timestamp()
+
+    def timestamp_text(self) -> str:
+        return timestamp(self.sent_at())
 
 
 class AgvAction(BaseModel):
@@ -163,12 +176,31 @@ class TypeSpecification(BaseModel):
     seriesName: str = ""
 
 
+class Timing(BaseModel):
+    model_config = _LENIENT
+
+    defaultStateInterval: float | None = Field(None, allow_inf_nan=False)
+
+
+class ProtocolLimits(BaseModel):
+    model_config = _LENIENT
+
+    timing: Timing | None = None
+
+
 class Factsheet(BaseModel):
     model_config = _LENIENT
 
     protocolFeatures: ProtocolFeatures
     physicalParameters: PhysicalParameters | None = None
     typeSpecification: TypeSpecification | None = None
+    protocolLimits: ProtocolLimits | None = None
+
+    def state_interval(self) -> float | None:
+        """Seconds between two states the AGV promises (``defaultStateInterval``), if it says."""
+        limits = self.protocolLimits
+        interval = limits.timing.defaultStateInterval if limits and limits.timing else None
+        return interval if interval is not None and interval > 0 else None
 
     def node_actions(self) -> frozenset[str]:
         return frozenset(

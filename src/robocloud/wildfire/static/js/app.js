@@ -2,6 +2,7 @@
 // form, the tables and the REQUEST STATE panel together.
 
 import { api } from "./api.js";
+import { Banner } from "./banner.js";
 import { RequestForm } from "./form.js";
 import { Live } from "./live.js";
 import { ForestMap } from "./map.js";
@@ -9,7 +10,7 @@ import { Sender } from "./sender.js";
 import { requestName, StatePanel } from "./state.js";
 import { REQUESTS_PER_PAGE, RequestsTable, RobotsTable } from "./tables.js";
 import {
-  $, el, FINAL_STATES, fmtAge, fmtClock, fmtDuration, fmtNumber, humanize, REQUEST_STATES, sentence,
+  $, el, FINAL_STATES, fmtAge, fmtClock, fmtDuration, fmtNumber, humanize, REQUEST_STATES, sentence, setStates,
   setCloudColours, STATUSES,
 } from "./util.js";
 
@@ -20,7 +21,7 @@ const page = {
   requestsQuery: { state: "", cursors: [""], index: 0, next: null },
   reloadTimer: null,
   unread: 0,
-  bannerId: null,
+  bannerKey: null,
   cardRobot: null,
   tab: "send",
   tableTab: "requests",
@@ -36,6 +37,7 @@ function announce(text) {
 
 // --- the parts -----------------------------------------------------------------
 const live = new Live({ onSnapshot, onDelta, onLink });
+const banner = new Banner(live);
 const map = new ForestMap($("map"), {
   onPlace: (point) => form.setLocation(point),
   onRobot: (id) => showRobotCard(id),
@@ -43,6 +45,7 @@ const map = new ForestMap($("map"), {
 map.ageOf = (robot) => live.age(robot);
 const form = new RequestForm($("request-form"), {
   onSubmit: (task) => sender.submit(task),
+  onCheck: () => sender.forget(),
   onLocation: (point) => map.setFire(point),
 });
 const sender = new Sender({ api, onChange: showSend });
@@ -77,6 +80,8 @@ function onSnapshot() {
   drawHeader();
   drawCounts();
   drawAlerts();
+  banner.take(live.alerts);
+  drawBanner();
   robotsTable.render();
   for (const summary of live.requests.values()) requestsTable.update(summary);
   requestsTable.render();
@@ -96,6 +101,7 @@ function onDelta(_, change) {
   drawHeader();
   drawCounts();
   if (change.alerts.length) newAlerts(change.alerts);
+  else drawBanner();
   robotsTable.render();
   followRequests(change.requests);
   if (page.cardRobot) showRobotCard(page.cardRobot, false);
@@ -116,6 +122,7 @@ function onLink(link) {
         : "The wildfire server has sent nothing for 5 s: the page shows what it last heard, greyed." }], true);
   }
   drawHeader();
+  drawBanner();
 }
 
 function applyConfig() {
@@ -124,6 +131,11 @@ function applyConfig() {
   map.setForest(config.forest);
   form.setForest(config.forest);
   form.setUnits(config.currency, live.timeScale());
+  form.setLimits(config.limits);
+  if (!REQUEST_STATES.length) {
+    setStates(config.states);
+    for (const s of REQUEST_STATES) $("requests-state").append(el("option", { value: s, text: s }));
+  }
   const f = config.forest;
   $("forest-hint").textContent = `The forest: x ${fmtNumber(f.x0)}–${fmtNumber(f.x1)}, y ${fmtNumber(f.y0)}–${fmtNumber(f.y1)} m.`;
   const clock = $("clock-scale");
@@ -202,22 +214,25 @@ function drawAlerts() {
 function newAlerts(alerts, local = false) {
   if (local) live.alerts.push(...alerts);
   drawAlerts();
-  const serious = alerts.filter((a) => a.level === "danger" || a.level === "warning" || a.level === "ok");
   if ($("alerts-panel").hidden) page.unread += alerts.length;
   $("alerts-count").textContent = String(page.unread);
   $("alerts-button").dataset.unread = String(page.unread > 0);
-  const last = serious[serious.length - 1];
-  if (last) {
-    const banner = $("banner");
-    banner.hidden = false;
-    banner.dataset.level = last.level;
-    $("banner-text").textContent = `${fmtClock(last.at)} · ${last.text}`;
-    page.bannerId = last.id;
-    announce(last.text);
-  }
+  banner.take(alerts);
+  const before = page.bannerKey;
+  const shown = drawBanner();
+  if (shown && shown.key !== before) announce(shown.text);
 }
 
-$("banner-close").addEventListener("click", () => { $("banner").hidden = true; });
+function drawBanner() {
+  const shown = banner.draw($("banner"), $("banner-text"));
+  page.bannerKey = shown ? shown.key : null;
+  return shown;
+}
+
+$("banner-close").addEventListener("click", () => {
+  banner.dismiss($("banner").dataset.key);
+  drawBanner();
+});
 $("alerts-button").addEventListener("click", () => {
   const panel = $("alerts-panel");
   panel.hidden = !panel.hidden;
@@ -251,7 +266,9 @@ function showSend(submission) {
     case "confirmed": {
       form.setBusy(false);
       const request = submission.request;
-      form.setResult(`Sent ${request.id}${request.label ? ` (“${request.label}”)` : ""}: ${request.state}.`, "ok");
+      // The IaaS has it, and has not chosen yet: neither green nor red until
+      // its own answer says what became of it (followSent).
+      sayWhereSent(request);
       announce(`Request ${request.id} sent.`);
       live.requests.set(request.id, { ...(live.requests.get(request.id) || {}), id: request.id, state: request.state });
       reloadRequests(0);
@@ -281,18 +298,35 @@ function showSend(submission) {
 }
 $("stop-checking").addEventListener("click", () => sender.stop());
 
-// The send's line follows its request: a rejection is not left green.
+// The send's line follows its request, in the IaaS's words: green only once
+// the IaaS says robots are on their way, so a rejection is never green.
+function sayWhereSent(summary) {
+  const name = summary.label ? `${summary.id} (“${summary.label}”)` : summary.id;
+  const robots = (summary.robots || summary.coalition || []).length;
+  switch (summary.state) {
+    case "rejected":
+    case "failed":
+      form.setResult(`${name} was ${summary.state}: ${sentence(humanize(summary.reason || "no reason given"))}`, "error");
+      break;
+    case "canceled":
+      form.setResult(`${name} was canceled.`, "info");
+      break;
+    case "dispatched":
+    case "underway":
+      form.setResult(`Sent ${name}: ${summary.state}${robots ? `, ${robots} robot${robots === 1 ? "" : "s"}` : ""}.`, "ok");
+      break;
+    case "completed":
+      form.setResult(`Sent ${name}: completed.`, "ok");
+      break;
+    default:
+      form.setResult(`Sent ${name}: the IaaS has it (${summary.state}) and is choosing a coalition…`, "info");
+  }
+}
+
 function followSent(summary) {
   const submission = sender.current;
   if (!submission || submission.state !== "confirmed" || submission.request.id !== summary.id) return;
-  const name = summary.label ? `${summary.id} (“${summary.label}”)` : summary.id;
-  if (summary.state === "rejected" || summary.state === "failed") {
-    form.setResult(`${name} was ${summary.state}: ${sentence(humanize(summary.reason || "no reason given"))}`, "error");
-  } else if (summary.state === "canceled") {
-    form.setResult(`${name} was canceled.`, "pending");
-  } else {
-    form.setResult(`Sent ${name}: ${summary.state}.`, "ok");
-  }
+  sayWhereSent(summary);
 }
 
 // --- requests ---------------------------------------------------------------------------
@@ -338,7 +372,6 @@ async function loadRequests() {
   }
 }
 
-for (const s of REQUEST_STATES) $("requests-state").append(el("option", { value: s, text: s }));
 $("requests-state").addEventListener("change", () => {
   page.requestsQuery = { state: $("requests-state").value, cursors: [""], index: 0, next: null };
   loadRequests();
@@ -393,6 +426,7 @@ function showRequest(request) {
   const summary = live.requests.get(request.id);
   if (summary && summary.rev !== page.selectedRev && summary.updated_at < request.updated_at) live.requests.set(request.id, { ...summary, state: request.state });
   $("cancel").disabled = FINAL_STATES.has(request.state);
+  followSent(request);
   map.select(request);
   statePanel.show(request);
 }
@@ -463,7 +497,7 @@ function fillCapabilityFilter() {
   const have = [...select.options].slice(1).map((o) => o.value);
   if (names.join() === have.join()) return;
   const value = select.value;
-  select.replaceChildren(el("option", { value: "", text: "all" }), ...names.map((n) => el("option", { value: n, text: n })));
+  select.replaceChildren(el("option", { value: "", text: "all capabilities" }), ...names.map((n) => el("option", { value: n, text: n })));
   select.value = names.includes(value) ? value : "";
 }
 
@@ -473,7 +507,7 @@ function fillCloudFilter() {
   const have = [...select.options].slice(1).map((o) => o.value);
   if (names.join() === have.join()) return;
   const value = select.value;
-  select.replaceChildren(el("option", { value: "", text: "all" }), ...names.map((n) => el("option", { value: n, text: n })));
+  select.replaceChildren(el("option", { value: "", text: "all clouds" }), ...names.map((n) => el("option", { value: n, text: n })));
   select.value = names.includes(value) ? value : "";
 }
 
@@ -493,6 +527,9 @@ function showZoom() {
   drawCounts();
 }
 new MutationObserver(showZoom).observe($("map"), { attributes: true, attributeFilter: ["data-zoom"] });
+for (const radio of document.querySelectorAll("input[name=map-mode]")) {
+  radio.addEventListener("change", () => { if (radio.checked) map.setMode(radio.value); });
+}
 $("zoom-in").addEventListener("click", () => map.zoomBy(1.5));
 $("zoom-out").addEventListener("click", () => map.zoomBy(1 / 1.5));
 $("zoom-reset").addEventListener("click", () => map.reset());
@@ -509,17 +546,19 @@ function showRobotCard(id, move = true) {
   page.cardRobot = id;
   const assignment = live.assignments().get(id);
   const age = live.age(robot);
+  const staleAfter = (live.config && live.config.stale_after) || 5;
   const rows = [
     ["Cloud", robot.cloud], ["Status", robot.status], ["Battery", `${fmtNumber(robot.battery)}%`],
     ["Capabilities", (robot.capabilities || []).join(", ") || "–"],
-    ["Request", assignment ? requestName(assignment.request) : robot.request || "–"],
+    ["Request", assignment ? requestName(assignment.request) : robot.request ? `${robot.request} (not this application's)` : "–"],
     ["Task", robot.phase ? `${robot.phase}${Number.isFinite(robot.progress) ? ` · ${Math.round(robot.progress * 100)}%` : ""}` : "–"],
     ["ETA", assignment ? fmtDuration(live.robotEta(robot, assignment.time)) : "–"],
     ["Position", `(${fmtNumber(robot.x)}, ${fmtNumber(robot.y)}) m`],
-    ["Last heard", age === null ? "live" : `${fmtAge(age)} (stale)`],
+    ["Last heard", age === null ? `within the last ${fmtNumber(staleAfter)} s` : `${fmtAge(age)} (stale: greyed)`],
   ];
   $("robot-card-title").textContent = robot.id;
   $("robot-card-body").replaceChildren(...rows.flatMap(([k, v]) => [el("dt", { text: k }), el("dd", { text: v })]));
+  $("robot-card-note").textContent = statusMeaning(robot, assignment, age);
   card.dataset.robot = id;
   card.classList.toggle("stale", age !== null);
   card.hidden = false;
@@ -535,6 +574,25 @@ function showRobotCard(id, move = true) {
   }
 }
 $("robot-card-close").addEventListener("click", () => showRobotCard(null));
+
+// What a robot's status means, in a sentence, for its card.
+function statusMeaning(robot, assignment, age) {
+  const ours = assignment ? `for ${requestName(assignment.request)}, one of this application's requests` : null;
+  const theirs = robot.request ? `for request ${robot.request}, not one of this application's`
+    : "for work outside this application (another user of its cloud)";
+  let text;
+  switch (robot.status) {
+    case "idle": text = "Idle: free, it may be chosen for a request."; break;
+    case "reserved": text = `Reserved ${ours || theirs}: held for a coalition, not free to be chosen.`; break;
+    case "busy": text = `Busy ${ours || theirs}: at work, not free to be chosen.`; break;
+    case "charging": text = "Charging: not available until its battery is charged."; break;
+    default:
+      text = "Offline: out of service: it says it is off (a flat battery, switched off), or its IaaS "
+        + "has not heard from it for a few seconds (5 by default). It is never chosen while offline.";
+  }
+  if (age !== null) text += ` Not heard for ${fmtAge(age).replace(" ago", "")}: what it shows may be old.`;
+  return text;
+}
 
 // --- tabs: the tables' (Requests, Robots) and, on a phone, the page's ----------------------
 function showTableTab(name) {
@@ -569,6 +627,7 @@ for (const button of $("tabs").querySelectorAll("button")) {
 setInterval(() => {
   fillCloudFilter();
   drawHeader();
+  drawBanner();
   statePanel.tick();
   if (page.tableTab === "requests") requestsTable.render();
   if (live.link !== "live") document.body.dataset.staleFor = fmtDuration(live.localNow() - live.linkSince);

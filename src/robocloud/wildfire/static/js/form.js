@@ -5,19 +5,22 @@
 
 import { el, fmtDuration, fmtNumber, humanize, sentence } from "./util.js";
 
-const MAX_COUNT = 10000;
-const MAX_ROBOTS = 100000;
 const FIELDS = ["location", "capabilities", "max_robots", "max_cost", "max_time", "min_battery", "label", "form"];
 
-// What each priority does to the choice (MODEL.md: the ranking's and the
-// final choice's weights both follow it).
+// What each priority does to the final choice among the Pareto-optimal
+// coalitions (docs/model.md), one line each.
 const PRIORITY_TEXT = {
-  balanced: "Balanced: robots are ranked with time and cost weighing the same; the coalition is chosen "
-    + "among the Pareto-optimal ones with time, cost and size weighing a third each.",
-  time: "Time critical: robots are ranked with time weighing 0.75 and cost 0.25; the choice among the "
-    + "Pareto-optimal coalitions favours the quickest (time 0.6, cost 0.2, size 0.2), even if it costs more.",
-  cost: "Cost critical: robots are ranked with cost weighing 0.75 and time 0.25; the choice among the "
-    + "Pareto-optimal coalitions favours the cheapest (cost 0.6, time 0.2, size 0.2), even if it takes longer.",
+  balanced: "Balanced: time, cost and size weigh a third each, by how much the coalitions differ.",
+  time: "Time critical: favours quicker coalitions: time weighs 0.6, cost and size 0.2 each.",
+  cost: "Cost critical: favours cheaper coalitions: cost weighs 0.6, time and size 0.2 each.",
+};
+
+// The task's bounds, as the IaaS's own schema gives them (GET /api/config
+// "limits", read by the server from the IaaS's /openapi.json). Until they come,
+// a bound is not checked here: the IaaS's own sentence says it.
+const NO_LIMITS = {
+  count: { min: 1, max: null }, max_robots: { min: 1, max: null }, max_cost: { min: 0, max: null },
+  max_time: { min: 0, max: null }, min_battery: { min: 0, max: 100 }, label: { max_length: 200 },
 };
 
 function metres(value) {
@@ -40,9 +43,11 @@ function readNumber(input) {
 }
 
 export class RequestForm {
-  constructor(form, { onSubmit, onLocation }) {
+  constructor(form, { onSubmit, onLocation, onCheck = () => {} }) {
     this.form = form;
     this.onSubmit = onSubmit;
+    this.onCheck = onCheck;
+    this.limits = NO_LIMITS;
     this.onLocation = onLocation;
     this.inputs = {
       x: form.querySelector("#loc-x"),
@@ -80,6 +85,23 @@ export class RequestForm {
 
   setForest(forest) {
     this.forest = forest;
+  }
+
+  setLimits(limits) {
+    if (!limits) return;
+    const merged = {};
+    for (const [name, bounds] of Object.entries(NO_LIMITS)) merged[name] = { ...bounds, ...(limits[name] || {}) };
+    this.limits = merged;
+    const attrs = { max_robots: "max_robots", max_cost: "max_cost", max_time: "max_time", min_battery: "min_battery" };
+    for (const [field, name] of Object.entries(attrs)) {
+      const { min, max } = merged[name];
+      if (Number.isFinite(min)) this.inputs[field].min = String(min);
+      if (Number.isFinite(max)) this.inputs[field].max = String(max);
+    }
+    if (Number.isFinite(merged.label.max_length)) this.inputs.label.maxLength = merged.label.max_length;
+    for (const cap of this.caps.values()) {
+      if (Number.isFinite(merged.count.max)) cap.input.max = String(merged.count.max);
+    }
   }
 
   setUnits(currency, timeScale) {
@@ -138,7 +160,8 @@ export class RequestForm {
 
   capRow(offer) {
     const id = `cap-${offer.name.replace(/[^A-Za-z0-9_-]/g, "_")}`;
-    const input = el("input", { id, type: "number", min: 0, max: MAX_COUNT, step: 1, value: 0,
+    const max = this.limits.count.max;
+    const input = el("input", { id, type: "number", min: 0, max: Number.isFinite(max) ? max : null, step: 1, value: 0,
       inputmode: "numeric", "data-cap": offer.name, "aria-describedby": `err-${id} err-capabilities` });
     const avail = el("span", { class: "avail" });
     const error = el("p", { class: "error", id: `err-${id}` });
@@ -168,11 +191,14 @@ export class RequestForm {
     const actuating = {};
     let most = 0;
     let mostName = null;
+    const L = this.limits;
+    const upTo = (max) => (Number.isFinite(max) ? ` to ${fmtNumber(max)}` : " or more");
+    const within = (value, { min, max }) => value >= min && !(Number.isFinite(max) && value > max);
     for (const [name, cap] of this.caps) {
       const count = readNumber(cap.input);
       const value = count.empty ? 0 : count.value;
-      if (!Number.isInteger(value) || value < 0 || value > MAX_COUNT) {
-        errors[`cap:${name}`] = `${name}: a whole number from 0 to ${fmtNumber(MAX_COUNT)}.`;
+      if (!Number.isInteger(value) || value < 0 || (Number.isFinite(L.count.max) && value > L.count.max)) {
+        errors[`cap:${name}`] = `${name}: a whole number from 0${upTo(L.count.max)}.`;
         continue;
       }
       if (value >= 1) (cap.kind === "actuating" ? actuating : sensing)[name] = value;
@@ -186,24 +212,26 @@ export class RequestForm {
 
     const maxRobots = readNumber(this.inputs.max_robots);
     if (maxRobots.empty) errors.max_robots = "Max robots is required.";
-    else if (!Number.isInteger(maxRobots.value) || maxRobots.value < 1 || maxRobots.value > MAX_ROBOTS) {
-      errors.max_robots = `Max robots must be a whole number from 1 to ${fmtNumber(MAX_ROBOTS)}.`;
+    else if (!Number.isInteger(maxRobots.value) || !within(maxRobots.value, L.max_robots)) {
+      errors.max_robots = `Max robots must be a whole number from ${fmtNumber(L.max_robots.min)}${upTo(L.max_robots.max)}.`;
     } else if (most > maxRobots.value) {
       errors.max_robots = `${mostName} needs ${most} robots, more than max robots allows.`;
     }
     const maxCost = readNumber(this.inputs.max_cost);
     if (maxCost.empty) errors.max_cost = "Max cost is required.";
     else if (!Number.isFinite(maxCost.value) || maxCost.value <= 0) errors.max_cost = "Max cost must be a positive number.";
+    else if (!within(maxCost.value, L.max_cost)) errors.max_cost = `Max cost may be at most ${fmtNumber(L.max_cost.max)}.`;
     const maxTime = readNumber(this.inputs.max_time);
     if (maxTime.empty) errors.max_time = "Max time is required.";
     else if (!Number.isFinite(maxTime.value) || maxTime.value <= 0) errors.max_time = "Max time must be a positive number of seconds.";
+    else if (!within(maxTime.value, L.max_time)) errors.max_time = `Max time may be at most ${fmtNumber(L.max_time.max)} s.`;
     const battery = readNumber(this.inputs.min_battery);
     const minBattery = battery.empty ? 0 : battery.value;
-    if (!Number.isFinite(minBattery) || minBattery < 0 || minBattery > 100) {
-      errors.min_battery = "Min battery must be a percentage from 0 to 100.";
+    if (!Number.isFinite(minBattery) || !within(minBattery, L.min_battery)) {
+      errors.min_battery = `Min battery must be a percentage from ${fmtNumber(L.min_battery.min)} to ${fmtNumber(L.min_battery.max)}.`;
     }
     const label = this.inputs.label.value.trim();
-    if (label.length > 200) errors.label = "The label may have at most 200 characters.";
+    if (label.length > L.label.max_length) errors.label = `The label may have at most ${fmtNumber(L.label.max_length)} characters.`;
 
     const task = {
       location: [x.value, y.value], sensing, actuating,
@@ -217,12 +245,16 @@ export class RequestForm {
   }
 
   async submit() {
+    this.onCheck();
     this.clearErrors();
     this.setResult("", null);
     const { task, errors } = this.read();
-    if (Object.keys(errors).length) {
+    const messages = Object.values(errors);
+    if (messages.length) {
       this.showErrors(errors);
-      this.setResult("Check the fields marked in red.", "error");
+      // Beside the button too, whole: the field may be out of sight in a short window.
+      this.setResult(`Check the field${messages.length === 1 ? "" : "s"} marked in red: ${messages[0]}`
+        + (messages.length > 1 ? ` (and ${messages.length - 1} more)` : ""), "error");
       return;
     }
     await this.onSubmit(task);
@@ -303,9 +335,8 @@ export class RequestForm {
   }
 
   setResult(text, kind) {
-    this.result.textContent = text;
+    // The kind first: the words never show in the colour of the line before.
     if (kind) this.result.dataset.kind = kind; else delete this.result.dataset.kind;
-    // The form may be taller than its panel: what happened to a send is kept in sight.
-    if (text) this.result.scrollIntoView({ block: "nearest" });
+    this.result.textContent = text;
   }
 }

@@ -2,6 +2,8 @@
 // events): a snapshot, then a delta every tick with only what changed.
 // EventSource reconnects by itself; each reconnection starts from a snapshot.
 
+import { FINAL_STATES } from "./util.js";
+
 const SILENT_AFTER_S = 5;   // no event for this long: the page says what it shows is old
 
 export class Live {
@@ -127,7 +129,7 @@ export class Live {
   assignments() {
     const map = new Map();
     for (const request of this.requests.values()) {
-      if (["completed", "rejected", "canceled", "failed"].includes(request.state)) continue;
+      if (FINAL_STATES.has(request.state)) continue;
       for (const [id, , time] of request.robots || []) map.set(id, { request, time });
     }
     return map;

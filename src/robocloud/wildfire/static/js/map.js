@@ -3,13 +3,21 @@
 // coalition with paths to its fire. Zoom and pan with the wheel, a pinch, a
 // drag, the buttons or the keyboard; filters by cloud, status and capability.
 // Inline SVG, y up; robots keep their size on screen whatever the zoom.
+//
+// What a click does is one rule, said on the page: in "Place fire" mode (the
+// default) a click places the fire wherever it lands, on a robot too; a
+// robot's details come with Shift+click, or in "Inspect robots" mode, where a
+// click opens the card of the nearest robot and never moves the fire. So a
+// crowded forest never turns a click meant for the fire into a robot's card.
 
 import { cloudColour, fmtAge, fmtNumber, STATUSES, svg, ticks } from "./util.js";
 
-export const AREA = { left: 84, top: 14, right: 958, bottom: 888 };  // viewBox 0 0 990 930
+// Room beside the plot for the axis labels, whole at a phone's larger font.
+export const AREA = { left: 104, top: 14, right: 978, bottom: 888 };  // viewBox 0 0 1024 930
 const SIDE = AREA.right - AREA.left;   // the plot area is square
 const MAX_ZOOM = 32;
 const DRAG_PX = 5;                     // a press that moves less is a click
+const PICK_RADIUS = 30;                // viewBox units: how near a click must be to inspect a robot
 
 function shapeFor(status) {
   switch (status) {
@@ -32,6 +40,7 @@ export class ForestMap {
     this.fire = null;             // [x, y] or null
     this.selection = null;        // {location, robots: Set, active}
     this.filter = { cloud: "", status: "", capability: "" };
+    this.mode = "fire";           // "fire" or "inspect": what a click does
     this.layers = {};
     const clip = svg("clipPath", { id: "map-clip" },
       svg("rect", { x: AREA.left, y: AREA.top, width: SIDE, height: SIDE, rx: 6 }));
@@ -288,12 +297,12 @@ export class ForestMap {
     if (!this.fire || !this.inForest(this.fire)) return;
     const [sx, sy] = this.toScreen(this.fire);
     const label = `fire ${fmtNumber(this.fire[0])}, ${fmtNumber(this.fire[1])}`;
-    const right = sx < AREA.right - 170;
+    const right = sx < AREA.right - 250;  // room for the label at a phone's larger font
     layer.append(svg("g", { class: "fire-marker", id: "fire-marker", transform: `translate(${sx.toFixed(1)} ${sy.toFixed(1)})`,
       "data-x": this.fire[0], "data-y": this.fire[1] },
     svg("circle", { class: "fire-halo", r: 36 }),
     svg("use", { href: "#fire-icon", x: -24, y: -26, width: 48, height: 48 }),
-    svg("text", { class: "fire-label", x: right ? 42 : -42, y: 8, "text-anchor": right ? "start" : "end", text: label })));
+    svg("text", { class: "fire-label", x: right ? 42 : -42, y: sy > AREA.bottom - 40 ? -30 : 8, "text-anchor": right ? "start" : "end", text: label })));
   }
 
   // --- pointer, wheel and keys ------------------------------------------------
@@ -347,19 +356,38 @@ export class ForestMap {
     this.click(event, g.target);
   }
 
+  setMode(mode) {
+    this.mode = mode === "inspect" ? "inspect" : "fire";
+    this.svg.classList.toggle("inspect", this.mode === "inspect");
+  }
+
   click(event, target) {
-    const group = target && target.closest && target.closest(".robot");
-    if (group) {
-      this.onRobot(group.dataset.robot, group);
-      return;
-    }
     const point = this.viewBoxPoint(event);
     if (!point) return;
+    if (this.mode === "inspect" || event.shiftKey) {
+      const group = target && target.closest && target.closest(".robot");
+      const id = group ? group.dataset.robot : this.nearestRobot(point);
+      this.onRobot(id || null);
+      return;
+    }
     if (point.x < AREA.left || point.x > AREA.right || point.y < AREA.top || point.y > AREA.bottom) return;
     const [x, y] = this.toWorld(point.x, point.y);
     const world = [Math.round(x), Math.round(y)];
     this.setFire(world, true);
     this.onPlace(world);
+  }
+
+  // The shown robot nearest to a viewBox point, if one is within PICK_RADIUS.
+  nearestRobot(point) {
+    let best = null;
+    let bestDistance = PICK_RADIUS;
+    for (const [id, entry] of this.robots) {
+      if (entry.group.classList.contains("filtered")) continue;
+      const [sx, sy] = this.toScreen([entry.robot.x, entry.robot.y]);
+      const distance = Math.hypot(sx - point.x, sy - point.y);
+      if (distance <= bestDistance) { best = id; bestDistance = distance; }
+    }
+    return best;
   }
 
   wheel(event) {

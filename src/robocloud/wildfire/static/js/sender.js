@@ -71,6 +71,11 @@ export class Sender {
     submission.timer = setTimeout(() => this.attempt(submission), wait * 1000);
   }
 
+  // A new submission begins: the line under the form stops following the last one.
+  forget() {
+    if (!this.busy()) this.current = null;
+  }
+
   stop() {
     const submission = this.current;
     if (!submission || !this.busy()) return;

@@ -43,7 +43,15 @@ export class StatePanel {
 
   show(request) {
     this.request = request;
+    const same = this.request && this.shownId === request.id;
+    const kept = same ? this.body.querySelector("#state-more")?.scrollTop || 0 : 0;
+    this.shownId = request.id;
     this.body.replaceChildren(...this.view(request));
+    const scroller = this.body.querySelector("#state-more");
+    if (scroller) scroller.scrollTop = kept;
+    // The newest step in sight when the history is longer than its box.
+    const box = this.body.querySelector("#history-box");
+    if (box) box.scrollTop = box.scrollHeight;
     this.tick();
   }
 
@@ -57,10 +65,12 @@ export class StatePanel {
     const task = request.task || {};
     const needs = needsText({ ...(task.actuating || {}), ...(task.sensing || {}) });
     const [maxTime] = this.robotTime(task.max_time);
-    parts.push(el("p", { class: "muted task-line",
+    const more = [];   // below the state, the ETA and the history, scrolled in a short window
+    // What was asked: below the coalition and the front, which matter more while it runs.
+    const taskLine = el("p", { class: "muted task-line",
       text: `Fire at ${fmtPoint(task.location)} · ${needs} · at most ${fmtNumber(task.max_robots)} robots, `
         + `${this.money(task.max_cost)}, ${maxTime} robot time · battery ≥ ${fmtNumber(task.min_battery)}% · `
-        + `${PRIORITY[task.priority] || task.priority} · ${task.execution}` }));
+        + `${PRIORITY[task.priority] || task.priority} · ${task.execution}` });
     if (request.reason) parts.push(el("p", { class: "reason", id: "state-reason", text: sentence(humanize(request.reason)) }));
 
     const coalition = request.coalition || [];
@@ -70,11 +80,11 @@ export class StatePanel {
       eta: el("div", { class: "v", id: "stat-eta" }),
     };
     parts.push(el("div", { class: "stats" },
+      statNode("ETA", this.stats.eta, "real time"),
+      statNode("Elapsed", this.stats.elapsed, "real time"),
+      stat("Robots", coalition.length ? fmtNumber(coalition.length) : "–", "", "stat-robots"),
       stat("Time (robot clock)", time, timeReal, "stat-time"),
       stat("Cost", this.money(request.cost), "", "stat-cost"),
-      stat("Robots", coalition.length ? fmtNumber(coalition.length) : "–", "", "stat-robots"),
-      statNode("Elapsed", this.stats.elapsed, "real time"),
-      statNode("ETA", this.stats.eta, "real time"),
       stat("Selection", request.optimizer ? request.optimizer : "–",
         request.selection_ms !== null && request.selection_ms !== undefined ? `${fmtNumber(request.selection_ms, 1)} ms` : "", "stat-selection")));
 
@@ -84,7 +94,6 @@ export class StatePanel {
         el("span", { class: "hint", text: front.length ? `${front.length} coalition${front.length === 1 ? "" : "s"} · marker size = robots` : "" })));
     if (front.length) frontBox.append(drawFront(request, { currency: this.currency() }));
     else frontBox.append(el("p", { class: "muted", text: emptyFront(request.state) }));
-    parts.push(frontBox);
 
     this.bars = new Map();
     if (coalition.length) {
@@ -93,8 +102,9 @@ export class StatePanel {
         swatch.style.background = cloudColour(a.cloud);
         const fill = el("div", { class: "fill" });
         const phase = el("span", { class: "phase" });
+        // The words above the bar: "pending", "travel · 1 min 05 s", "canceled" are read whole.
         const bar = el("div", { class: "progress", role: "progressbar", "aria-valuemin": 0, "aria-valuemax": 100 },
-          el("div", { class: "track" }, fill), phase);
+          phase, el("div", { class: "track" }, fill));
         this.bars.set(a.robot, { bar, fill, phase, assignment: a });
         const [t] = this.robotTime(a.time);
         return el("tr", { "data-robot": a.robot },
@@ -104,15 +114,17 @@ export class StatePanel {
           el("td", { class: "num", text: fmtNumber(a.cost, 2) }),
           el("td", {}, bar));
       });
-      parts.push(el("div", { class: "coalition-box" },
+      more.push(el("div", { class: "coalition-box" },
         el("h3", { class: "subhead" }, el("span", { text: "Coalition" }), el("span", { class: "hint", text: `highlighted on the map · time in robot time, cost in ${this.currency()}` })),
         el("div", { class: "table-scroll" }, el("table", { class: "coalition", id: "coalition" },
           el("thead", {}, el("tr", {}, el("th", { text: "Robot" }), el("th", { text: "Capabilities" }),
-            el("th", { class: "num", text: "Time" }), el("th", { class: "num", text: "Cost" }), el("th", { text: "Progress" }))),
+            el("th", { class: "num", text: "Time" }), el("th", { class: "num", text: "Cost" }), el("th", { class: "progress-head", text: "Progress" }))),
           el("tbody", {}, ...rows)))));
     }
+    more.push(frontBox, taskLine);
+    parts.push(el("div", { class: "state-more", id: "state-more" }, ...more));
 
-    parts.push(el("div", { class: "history-box" },
+    parts.push(el("div", { class: "history-box", id: "history-box" },
       el("h3", { class: "subhead" }, el("span", { text: "History" }), el("span", { class: "hint", text: "real time" })),
       el("ol", { class: "history", id: "history" }, ...(request.history || []).map((h) => el("li", { "data-state": h.state, "data-kind": h.kind },
         el("time", { datetime: h.at, text: fmtClock(h.at) }),

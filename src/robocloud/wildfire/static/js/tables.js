@@ -68,7 +68,9 @@ class Table {
       let row = this.rows.get(id);
       if (!row) {
         row = el("tr", { "data-id": id, tabindex: 0 });
-        for (const column of this.columns) row.append(el("td", { class: column.num ? "num" : null, "data-key": column.key }));
+        for (const column of this.columns) {
+          row.append(el("td", { class: column.num ? "num" : null, "data-key": column.key, "data-label": column.title }));
+        }
         row.addEventListener("click", () => this.onRow(id));
         row.addEventListener("keydown", (e) => { if (e.key === "Enter") this.onRow(id); });
         this.rows.set(id, row);
@@ -109,9 +111,12 @@ export class RobotsTable extends Table {
       const a = assignment(robot);
       return a ? live.robotEta(robot, a.time) : null;
     };
+    // Busy or reserved for none of this application's requests: someone else's work, said so.
     const request = (robot) => {
       const a = assignment(robot);
-      return a ? (a.request.label ? `${a.request.label} (${a.request.id})` : a.request.id) : robot.request || null;
+      if (a) return a.request.label ? `${a.request.label} (${a.request.id})` : a.request.id;
+      if (robot.request) return `${robot.request} (not ours)`;
+      return robot.status === "busy" || robot.status === "reserved" ? "outside this app" : null;
     };
     super(table, [
       { key: "id", title: "Robot", value: (r) => r.id },
@@ -123,7 +128,7 @@ export class RobotsTable extends Table {
       { key: "request", title: "Request", value: request },
       { key: "eta", title: "ETA", num: true, value: eta, cell: (r) => { const v = eta(r); return v === null ? "–" : fmtDuration(v); } },
       { key: "heard", title: "Last heard", num: true, value: (r) => live.age(r) ?? 0,
-        cell: (r) => { const age = live.age(r); return age === null ? "live" : fmtAge(age); } },
+        cell: (r) => { const age = live.age(r); return age === null ? `within ${fmtNumber((live.config && live.config.stale_after) || 5)} s` : fmtAge(age); } },
     ], { onRow });
     self = this;
     this.assigned = new Map();

@@ -69,15 +69,40 @@ export function epoch(iso) {
   return Number.isNaN(t) ? NaN : t / 1000;
 }
 
-// "Nice" axis ticks: about `count` round numbers covering [lo, hi].
+// A "nice" step (1, 2, 2.5 or 5 times a power of ten) of at least `raw`.
+export function niceStep(raw) {
+  const power = 10 ** Math.floor(Math.log10(raw));
+  return [1, 2, 2.5, 5, 10].map((m) => m * power).find((s) => s >= raw * (1 - 1e-12)) ?? raw;
+}
+
+// "Nice" axis ticks: about `count` round numbers within [lo, hi].
 export function ticks(lo, hi, count = 5) {
   if (!(hi > lo)) return [lo];
-  const raw = (hi - lo) / count;
-  const power = 10 ** Math.floor(Math.log10(raw));
-  const step = [1, 2, 2.5, 5, 10].map((m) => m * power).find((s) => s >= raw) ?? raw;
+  const step = niceStep((hi - lo) / count);
   const out = [];
   for (let v = Math.ceil(lo / step) * step; v <= hi + step * 1e-9; v += step) out.push(+v.toFixed(10));
   return out;
+}
+
+// An axis for `values` whose ticks cover every value: it starts and ends on a
+// tick, so no point lies beyond the labelled range. At least three ticks.
+export function niceAxis(values, count = 4, floor = 0) {
+  let lo = Math.min(...values);
+  let hi = Math.max(...values);
+  if (!(hi > lo)) {
+    const pad = Math.max(Math.abs(hi) * 0.1, 1);
+    lo -= pad;
+    hi += pad;
+  }
+  const span = hi - lo;
+  lo = Math.max(floor, lo - span * 0.05);
+  hi += span * 0.05;
+  const step = niceStep((hi - lo) / count);
+  const start = Math.max(floor, Math.floor(lo / step + 1e-9) * step);
+  const end = Math.ceil(hi / step - 1e-9) * step;
+  const out = [];
+  for (let v = start; v <= end + step * 1e-9; v += step) out.push(+v.toFixed(10));
+  return { lo: out[0], hi: out[out.length - 1], ticks: out };
 }
 
 // The decimals that tell each of `values` (evenly spaced ticks) from the next, at most 3:
@@ -110,9 +135,18 @@ export function humanize(text) {
   return String(text || "").replace(/\b(max_time|max_cost|max_robots|min_battery)\b/g, (name) => FIELD_NAMES[name]);
 }
 
-export const FINAL_STATES = new Set(["completed", "rejected", "canceled", "failed"]);
-export const ACTIVE_STATES = ["received", "selecting", "dispatched", "underway"];
-export const REQUEST_STATES = [...ACTIVE_STATES, "completed", "rejected", "canceled", "failed"];
+// A request's states, from the server's config (robocloud.domain.request, the one
+// source): filled in place by setStates, so every module's import sees them.
+export const FINAL_STATES = new Set();
+export const ACTIVE_STATES = [];
+export const REQUEST_STATES = [];
+
+export function setStates(states) {
+  if (!states || REQUEST_STATES.length) return;
+  REQUEST_STATES.push(...states.all);
+  ACTIVE_STATES.push(...states.all.filter((s) => !states.final.includes(s)));
+  for (const s of states.final) FINAL_STATES.add(s);
+}
 export const STATUSES = ["idle", "reserved", "busy", "charging", "offline"];
 export const PRIORITY = { balanced: "balanced", time: "time critical", cost: "cost critical" };
 

@@ -24,6 +24,7 @@ from benchmarks import (
     fleet,
     memory,
     nxt,
+    ros2,
     select_command,
     selection,
     service,
@@ -51,6 +52,7 @@ SECTIONS: list[Section] = [
     Section("throughput", throughput.run),
     Section("fleet", fleet.run),
     Section("nxt", nxt.run),
+    Section("ros2", ros2.run),
     Section("memory", memory.run),
 ]
 

@@ -23,7 +23,7 @@ from robocloud.gateways.nxt.brick import ARRIVE_WITHIN
 from robocloud.gateways.nxt.bricks import BricksFile, parse_bricks
 from robocloud.gateways.nxt.gateway import NxtGateway
 from robocloud.gateways.nxt.standin import SimBrick, StandIn, World
-from robocloud.gateways.vda5050.zenoh_side import CommandHandler
+from robocloud.gateways.zenoh_side import CommandHandler
 
 EXAMPLE = Path(__file__).parents[2] / "examples" / "nxt" / "thesis-bricks.json"
 ROBOT = "nxt-base-1"

@@ -26,7 +26,7 @@ from robocloud.gateways.vda5050.agv import Timing
 from robocloud.gateways.vda5050.capabilities import GatewayCapabilities
 from robocloud.gateways.vda5050.gateway import Vda5050Gateway
 from robocloud.gateways.vda5050.metrics import serve_metrics
-from robocloud.gateways.vda5050.zenoh_side import (
+from robocloud.gateways.zenoh_side import (
     CommandHandler,
     RobotSide,
     ZenohFleet,

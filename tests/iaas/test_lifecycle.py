@@ -281,6 +281,11 @@ def test_a_refusal_names_the_robots_of_the_try_told_to_stop() -> None:
          "it reported that it cannot finish its task"),
         (lc.RobotReport("a-1", "idle", 40.0, None, 0.0, last_phase="failed"),
          "it reported that it cannot finish its task"),
+        # Protocol 1.1: the robot's own sentence, printable characters only.
+        (lc.RobotReport("a-1", "idle", 40.0, "failed", 0.5,
+                        reason="navigation preempted\nby another goal (ab12)."),
+         "it reported that it cannot finish its task: navigation preempted by another goal "
+         "(ab12)"),
     ],
 )
 def test_a_failure_says_why_the_robot_failed(report: lc.RobotReport, why: str) -> None:
@@ -411,7 +416,10 @@ def test_the_tolerance_is_half_the_expected_time_when_that_is_more_than_30_s() -
     rules = lc.Rules()
     assert rules.tolerance(30.0) == 30.0
     assert rules.tolerance(200.0) == 100.0
-    assert lc.Rules(time_scale=10.0).due(1000.0, 200.0) == pytest.approx(1030.0)
+    # Under a speed-up the expected time shrinks, the floor of the tolerance not:
+    # 200 robot s are 20 wall s at x10, and 50% of them 10 s, under the 30 s floor.
+    assert lc.Rules(time_scale=10.0).due(1000.0, 200.0) == pytest.approx(1050.0)
+    assert lc.Rules(time_scale=10.0).due(1000.0, 1000.0) == pytest.approx(1150.0)
 
 
 def test_progress_reported_extends_nothing() -> None:
@@ -479,7 +487,7 @@ def test_a_request_is_never_underway_past_max_time_plus_its_tolerance() -> None:
     commit = _effect(effects, lc.Commit)
     assert isinstance(commit, lc.Commit)
     assert commit.reason == (
-        "it ran past its max_time of 300 s plus the tolerance of 150 s (robot time); "
+        "it ran past its max_time of 300 s (robot time) plus the tolerance of 150 s; "
         "no robot was left working"
     )
 

@@ -170,7 +170,7 @@ def add_iaas_arguments(parser: argparse.ArgumentParser) -> None:
         type=float,
         default=30.0,
         metavar="SECONDS",
-        help="the watchdog's least tolerance, robot seconds (default 30)",
+        help="the watchdog's least tolerance, wall seconds (default 30)",
     )
     parser.add_argument(
         "--stall-after",

@@ -12,6 +12,7 @@
     robocloud vda5050 --cloud NAME --connect ENDPOINT --mqtt HOST:PORT (robocloud.gateways.vda5050)
     robocloud nxt --cloud NAME --connect ENDPOINT --bricks FILE     (robocloud.gateways.nxt)
     robocloud nxt-brick --bricks FILE --robot ID                    (a stand-in NXT brick)
+    robocloud ros2 --cloud NAME --connect ENDPOINT --robots FILE       (robocloud.gateways.ros2)
 
 ``select`` reads docs/model.md's input (a file, or ``-`` for stdin) and
 prints its output as one JSON document on stdout; its columnar reader
@@ -207,6 +208,15 @@ def build_parser() -> argparse.ArgumentParser:
     )
     add_standin_arguments(nxt_brick)
     nxt_brick.set_defaults(command=standin_command, command_name="nxt-brick")
+    from robocloud.gateways.ros2.command import add_ros2_arguments, ros2_command
+
+    ros2 = commands.add_parser(
+        "ros2",
+        help="make ROS 2 Nav2 robots (rmw_zenoh or zenoh-bridge-ros2dds) robots of a cloud",
+        description="Run the ROS 2 gateway until interrupted.",
+    )
+    add_ros2_arguments(ros2)
+    ros2.set_defaults(command=ros2_command, command_name="ros2")
     return parser
 
 

@@ -67,7 +67,7 @@ class Settings:
     cancel_timeout: float = 15.0  # seconds a cancel waits for its state to be stored
     # The watchdog (robocloud.iaas.lifecycle, docs/model.md): a robot may take
     # its expected time plus the larger of overrun_ratio of it and overrun_min
-    # robot seconds; stall_after seconds (wall clock) without progress while it
+    # wall seconds; stall_after seconds without progress while it
     # travels or works is a stall. A robot that fails so (or gives no ack) twice
     # in a row is set aside for set_aside_for seconds.
     overrun_ratio: float = 0.5

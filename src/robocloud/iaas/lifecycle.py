@@ -87,8 +87,11 @@ class Rules:
     # After a restart of the IaaS its robots must first reconnect (a Zenoh client
     # retries every 1 to 4 s): none is counted silent before this many seconds.
     restart_grace: float = 10.0
-    # The watchdog (docs/model.md, "The watchdog"): a robot may take its t_i plus
-    # the larger of ``overrun_ratio`` of it and ``overrun_min`` robot seconds.
+    # The watchdog (docs/model.md, "After dispatch"): a robot may take its t_i
+    # plus the larger of ``overrun_ratio`` of it and ``overrun_min`` seconds of
+    # the wall clock. The floor is wall time: a robot that does not follow the
+    # simulator's speed-up (a real AGV beside simulated robots), and the
+    # network's own delays, are not scaled.
     overrun_ratio: float = 0.5
     overrun_min: float = 30.0
     # Seconds (wall clock) without progress while travelling or working: stalled.
@@ -99,12 +102,12 @@ class Rules:
     remind_after: float = 2.0
 
     def tolerance(self, expected: float) -> float:
-        """Robot seconds a robot (or a request) may run past ``expected`` robot seconds."""
-        return max(self.overrun_ratio * expected, self.overrun_min)
+        """Wall seconds a robot (or a request) may run past ``expected`` robot seconds."""
+        return max(self.overrun_ratio * expected / self.time_scale, self.overrun_min)
 
     def due(self, start_wall: float, expected: float) -> float:
         """The wall time past which something started at ``start_wall`` has overrun."""
-        return start_wall + (expected + self.tolerance(expected)) / self.time_scale
+        return start_wall + expected / self.time_scale + self.tolerance(expected)
 
 
 @dataclass(frozen=True)
@@ -673,8 +676,8 @@ def _on_tick(life: Life, event: Tick, now: Now) -> Step:
         life, more = _end(
             life,
             "failed",
-            reason=f"it ran past its max_time of {task.max_time:g} s plus the tolerance of "
-            f"{rules.tolerance(task.max_time):g} s (robot time); "
+            reason=f"it ran past its max_time of {task.max_time:g} s (robot time) plus the "
+            f"tolerance of {rules.tolerance(task.max_time):g} s; "
             + (f"{', '.join(working)} told to stop" if working else "no robot was left working"),
         )
         effects += more
@@ -694,7 +697,7 @@ def _watchdog(life: Life, member: Member, now: Now) -> tuple[Cause, str] | None:
             return "overrun", (
                 f"it is past its expected finish ({member.time:.0f} s robot time, plus "
                 f"{rules.tolerance(member.time):.0f} s of tolerance) by "
-                f"{(now.wall - due) * rules.time_scale:.0f} s"
+                f"{now.wall - due:.0f} s"
             )
     still = now.mono - member.progressed_at
     if member.confirmed and member.phase in ("travel", "work") and still > rules.stall_after:
@@ -744,7 +747,8 @@ _HANDLERS: dict[type, Callable[[Life, Any, Now], Step]] = {
 
 def _why_failed(event: RobotReport) -> tuple[Cause, str]:
     """Why a robot that reports its task failed, or that went offline at it, failed it."""
-    said = f": {event.reason.rstrip('.')}" if event.reason else ""
+    # The robot's own sentence, on one line (a history line, a log line).
+    said = f": {' '.join(event.reason.split()).rstrip('.')}" if event.reason else ""
     if event.battery <= 0:
         return "offline", f"its battery died{said}"
     if event.status == "offline":

@@ -24,7 +24,7 @@ from robocloud.federation import security
 from robocloud.gateways.nxt.bricks import BricksFile, load_bricks
 
 if TYPE_CHECKING:
-    from robocloud.gateways.vda5050.zenoh_side import CommandHandler, RobotSide
+    from robocloud.gateways.zenoh_side import CommandHandler, RobotSide
 
 
 def add_nxt_arguments(parser: argparse.ArgumentParser) -> None:
@@ -107,7 +107,7 @@ def nxt_command(args: argparse.Namespace) -> int:
 def run_gateway(args: argparse.Namespace, bricks: BricksFile, stop: threading.Event) -> None:
     from robocloud.fleet.zenoh_session import open_client
     from robocloud.gateways.nxt.gateway import NxtGateway
-    from robocloud.gateways.vda5050.zenoh_side import ZenohFleet, ZenohRobots
+    from robocloud.gateways.zenoh_side import ZenohFleet, ZenohRobots
 
     session = open_client(
         args.connect, timeout=args.connect_timeout, security=security.from_arguments(args)

@@ -13,7 +13,7 @@ acknowledged at once (the driver starts the movement within a cycle); a
 cancel is acknowledged once the brick is told to brake, which the driver does
 on its next cycle (tens of milliseconds).
 
-The Zenoh side is the VDA 5050 gateway's (``gateways/vda5050/zenoh_side.py``),
+The Zenoh side is every gateway's (``gateways/zenoh_side.py``),
 which knows nothing of VDA 5050: the keys of a robot per brick, or with
 ``--gateway-name`` those of a fleet gateway.
 
@@ -34,7 +34,7 @@ from robocloud.gateways.nxt.brick import Brick
 from robocloud.gateways.nxt.bricks import BrickConfig, BricksFile
 from robocloud.gateways.nxt.driver import REPLY_TIMEOUT, BrickDriver
 from robocloud.gateways.nxt.transport import Link, connect_rfcomm, connect_tcp
-from robocloud.gateways.vda5050.zenoh_side import CommandHandler, RobotSide
+from robocloud.gateways.zenoh_side import CommandHandler, RobotSide
 
 log = logging.getLogger(__name__)
 

@@ -28,7 +28,7 @@ from robocloud.gateways.vda5050.messages import MAJOR
 from robocloud.sim.metrics import metrics_address
 
 if TYPE_CHECKING:
-    from robocloud.gateways.vda5050.zenoh_side import CommandHandler
+    from robocloud.gateways.zenoh_side import CommandHandler
 
 DEFAULT_MQTT = "127.0.0.1:1883"
 
@@ -201,7 +201,7 @@ def run_gateway(
 ) -> None:
     from robocloud.fleet.zenoh_session import open_client
     from robocloud.gateways.vda5050.gateway import Vda5050Gateway
-    from robocloud.gateways.vda5050.zenoh_side import RobotSide, ZenohFleet, ZenohRobots
+    from robocloud.gateways.zenoh_side import RobotSide, ZenohFleet, ZenohRobots
 
     if not capabilities.capabilities:
         logging.getLogger(__name__).warning(

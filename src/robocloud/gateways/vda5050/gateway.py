@@ -51,7 +51,7 @@ from robocloud.fleet.messages import Ack, Assign, Cancel, State
 from robocloud.gateways.vda5050 import messages as vda
 from robocloud.gateways.vda5050.agv import Agv, BadMessage, Stale, Timing
 from robocloud.gateways.vda5050.capabilities import GatewayCapabilities
-from robocloud.gateways.vda5050.zenoh_side import CommandHandler, RobotSide
+from robocloud.gateways.zenoh_side import CommandHandler, RobotSide
 
 log = logging.getLogger(__name__)
 

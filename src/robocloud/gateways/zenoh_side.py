@@ -1,12 +1,13 @@
-"""The gateway's robots on Zenoh, either way docs/protocol.md allows.
+"""A gateway's robots on Zenoh, either way docs/protocol.md allows; shared by every gateway.
 
-- ``ZenohRobots``: for each AGV a command queryable and a state publisher, the
-  keys of any robot.
+- ``ZenohRobots``: for each robot (an AGV, a brick, a ROS 2 robot) a command
+  queryable and a state publisher, the keys of any robot.
 - ``ZenohFleet``: as a fleet gateway ("Fleet gateways"): one wildcard command
-  queryable answering for the AGVs it fronts, and their states on the
-  gateway's batch key (``robocloud vda5050 --gateway-name NAME``).
+  queryable answering for the robots it fronts, and their states on the
+  gateway's batch key (``--gateway-name NAME`` of ``robocloud vda5050``,
+  ``robocloud nxt``, ``robocloud ros2``).
 
-Either is all the gateway knows of Zenoh, on one Zenoh client session.
+Either is all a gateway knows of Zenoh, on one Zenoh client session.
 """
 
 from __future__ import annotations

@@ -168,16 +168,11 @@ class LatestStates:
         """Hold ``state`` if it is newer (the caller holds the lock)."""
         held = self._states.get(state.id)
         # A smaller seq sent later is a restarted robot; otherwise an old
-        # or repeated message, unless the one held is older than offline_after:
-        # a robot silent that long starts a new order with whatever it sends,
-        # so a state forged with a huge seq or a future sent_at hides the real
-        # robot for offline_after at most, not until it is forgotten.
-        if (
-            held is not None
-            and state.seq <= held.seq
-            and state.sent_at <= held.sent_at
-            and now - self._received[state.id] <= self.offline_after
-        ):
+        # or repeated message (a reconnected robot may send its last one
+        # again). A state forged with a huge seq and a later sent_at hides
+        # the real robot only until the robot's clock passes that sent_at:
+        # the links refuse one more than MAX_CLOCK_SKEW ahead.
+        if held is not None and state.seq <= held.seq and state.sent_at <= held.sent_at:
             return False
         if held is None and len(self._states) >= self.max_fleet:
             self._forget_silent(now)

@@ -22,6 +22,7 @@ import numpy as np
 from benchmarks import (
     federation,
     fleet,
+    memory,
     missions,
     nxt,
     ros2,
@@ -54,6 +55,7 @@ SECTIONS: list[Section] = [
     Section("nxt", nxt.run),
     Section("ros2", ros2.run),
     Section("missions", missions.run),
+    Section("memory", memory.run),
 ]
 
 

@@ -281,7 +281,10 @@ def test_the_names_pattern_is_checked_when_the_document_may_hold_an_escape(
     document = copy.deepcopy(scenario)
     document["robots"][20]["id"] = "tab\there"
     sentence = assert_same_answer(encoded(document))
-    assert sentence == "robots[20].id must be printable text on one line (no control character)."
+    assert sentence == (
+        "robots[20].id must be printable text on one line "
+        "(no control character or bidirectional override)."
+    )
     document["robots"][20]["id"] = "caf\u00e9"  # escaped by json.dumps, and valid
     assert assert_same_answer(encoded(document)) == ""
 

@@ -55,7 +55,7 @@ def zenoh_pair(
     b = ZenohOverlay(b_session, "cloud-b", home_b)
     a = ZenohOverlay(a_session, "cloud-a", home_a, timeout=timeout)
     try:
-        assert wait_for_liveliness(a_session, cloud_token("cloud-b"), 5.0)
+        assert wait_for_liveliness(a_session, cloud_token("cloud-b", str(b_session.zid())), 5.0)
         wait_for_commands(a, "cloud-b")
         yield a, b
     finally:
@@ -144,8 +144,12 @@ def clouds(
     stores: dict[str, RequestStore] | None = None,
     lease_max: float = 30.0,
     origin_deadline: float = 60.0,
+    lend_share: float = 1.0,
 ) -> tuple[MemoryNetwork, dict[str, Cloud]]:
-    """One cloud per name, each with ``robots`` robots (``a-0``, ``a-1`` ... for cloud-a)."""
+    """One cloud per name, each with ``robots`` robots (``a-0``, ``a-1`` ... for cloud-a).
+
+    ``lend_share``: of a cloud's robots one other may hold (all, unless a test says).
+    """
     network = MemoryNetwork()
     time = time or FakeTime()
     out = {}
@@ -162,8 +166,10 @@ def clouds(
             (trust or {}).get(name),
             lease_max=lease_max,
             origin_deadline=origin_deadline,
+            lend_share=lend_share,
             coalition_of=origin.coalition_robots,
             clock=time.utc,
+            monotonic=time.mono,
         )
         overlay = network.join(name, home, link)
         view = FederationView(name, store, link, overlay, clock=time.mono)

@@ -51,9 +51,10 @@ def test_the_reply_is_the_idle_reply_of_its_robots() -> None:
     # The query's filter: a capability none has, a battery none reaches.
     unknown = IdleQuery(origin="cloud-a", capabilities=["x"])
     assert decode_idle_reply(home.idle_robots(unknown)).robots == []
-    assert decode_idle_reply(
-        home.idle_robots(IdleQuery(origin="cloud-a", min_battery=95.0))
-    ).robots == []
+    assert (
+        decode_idle_reply(home.idle_robots(IdleQuery(origin="cloud-a", min_battery=95.0))).robots
+        == []
+    )
     # Its own cloud's question gets no robot (they are already in its view).
     assert decode_idle_reply(home.idle_robots(IdleQuery(origin="cloud-b"))).robots == []
 

@@ -9,6 +9,7 @@ How long they take at 10 and 1,000 loans is measured in
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -47,8 +48,10 @@ def robot(i: int) -> Robot:
 def two_clouds(tmp_path: Path) -> Iterator[tuple[ZenohOverlay, Home]]:
     """cloud-a (no robots) and cloud-b (1,000 robots, a SQLite store), routers joined."""
     store = SqlRequestStore(f"sqlite:///{tmp_path / 'cloud-b.db'}")
-    link = MemoryRobotLink("cloud-b", [robot(i) for i in range(LOANS)])
-    home_b = Home("cloud-b", store, link, lease_max=3600)  # no lease lapses during the test
+    # Heard from throughout: they publish once, and a home lends only robots heard lately.
+    link = MemoryRobotLink("cloud-b", [robot(i) for i in range(LOANS)], offline_after=3600)
+    # No lease lapses during the test; every robot to one origin, as fast as it asks.
+    home_b = Home("cloud-b", store, link, lease_max=3600, lend_share=1.0, reserve_rate=math.inf)
     home_a = Home("cloud-a", MemoryRequestStore(), MemoryRobotLink("cloud-a"))
     try:
         # The calls wait up to 5 s (1 s by default): the test counts loans, not time, and a

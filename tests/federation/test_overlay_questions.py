@@ -45,8 +45,11 @@ class FrozenRobots(Home):
 
 @pytest.fixture
 def clouds() -> Iterator[tuple[ZenohOverlay, FrozenRobots]]:
-    home_b = FrozenRobots("cloud-b", MemoryRequestStore(),
-                          MemoryRobotLink("cloud-b", [robot("cloud-b", i) for i in range(3)]))
+    home_b = FrozenRobots(
+        "cloud-b",
+        MemoryRequestStore(),
+        MemoryRobotLink("cloud-b", [robot("cloud-b", i) for i in range(3)]),
+    )
     home_a = Home("cloud-a", MemoryRequestStore(), MemoryRobotLink("cloud-a"))
     try:
         with zenoh_pair(home_a, home_b, timeout=20.0) as (a, _):
@@ -60,8 +63,7 @@ def test_a_home_answers_questions_while_its_commands_wait_on_robots(
     clouds: tuple[ZenohOverlay, FrozenRobots],
 ) -> None:
     a, home_b = clouds
-    command = Assign(request_id="req-aaaaaaaaaaaa", location=[0.0, 0.0],
-                     capabilities=["grabber"])
+    command = Assign(request_id="req-aaaaaaaaaaaa", location=[0.0, 0.0], capabilities=["grabber"])
     acks = []
     stuck = [
         threading.Thread(

@@ -244,18 +244,27 @@ def test_access_control_is_off_without_a_way_to_know_peers(pki: Pki) -> None:
 def test_each_trusted_cloud_gets_only_the_command_keys_that_name_it() -> None:
     acl = access_control("cloud-b", ["cloud-c", "cloud-a"])
     rules = {rule["id"]: rule for rule in acl["rules"]}
+    policies = {policy["id"]: policy for policy in acl["policies"]}
     for name in ("cloud-a", "cloud-c"):
         assert rules[f"commands-from-{name}"]["key_exprs"] == [
             f"robocloud/cloud-b/from/{name}/{c}" for c in COMMANDS
         ]
+        # As a cloud: its own presence, answers and robots' states, nobody else's.
+        assert rules[f"presence-of-{name}"]["key_exprs"] == [
+            f"robocloud/federation/clouds/{name}/*"
+        ]
+        assert rules[f"answers-of-{name}"]["key_exprs"] == [f"robocloud/{name}/**"]
         assert {"id": f"cloud-{name}", "cert_common_names": [name]} in acl["subjects"]
-        assert {
-            "id": f"trusted-{name}",
-            "subjects": [f"cloud-{name}"],
-            "rules": [f"commands-from-{name}"],
-        } in acl["policies"]
+        assert policies[f"trusted-{name}"]["subjects"] == [f"cloud-{name}"]
     assert rules["answer"]["key_exprs"] == [f"robocloud/*/{q}" for q in QUESTIONS]
-    assert acl["policies"][0]["rules"] == ["messages", "ask", "answer"]  # anyone: no command
+    assert policies["anyone"]["rules"] == ["out", "listen", "answer"]  # no command, no put
+    # The fleet's certificate: its cloud's robot keys only.
+    assert {"id": "fleet", "cert_common_names": ["cloud-b-robots"]} in acl["subjects"]
+    assert rules["fleet-states"]["key_exprs"] == [
+        "robocloud/cloud-b/robots/*/state",
+        "robocloud/cloud-b/fleets/*/states",
+    ]
+    assert rules["fleet-commands"]["messages"] == ["declare_queryable", "reply"]
     assert json.loads(json.dumps(acl)) == acl
     # A router knows the user name only of peers that connected to it: by
     # user name, commands stay open to every peer let in (docs/security.md).
@@ -396,6 +405,9 @@ class Desk:
         with self.lock:
             self.commands.append((name, origin))
 
+    def trusts(self, cloud: str) -> bool:
+        return True
+
     def info(self) -> CloudInfo:
         return CloudInfo(cloud=self.cloud, robots=1, idle=1)
 
@@ -467,12 +479,14 @@ def federation(
         name: ZenohOverlay(session, name, desks[name], timeout=0.5)
         for name, session in routers.items()
     }
-    for session in routers.values():
-        for name in routers:
-            assert wait_for_liveliness(session, f"{CLOUDS_TOKEN}/{name}", 5.0)
+    # Each router lets in the presence of the clouds it trusts only.
+    seen = {name: sorted({name, *trust[name]}) for name in routers}
+    for name, session in routers.items():
+        for other in seen[name]:
+            assert wait_for_liveliness(session, f"{CLOUDS_TOKEN}/{other}/*", 5.0)
     # Each overlay learns the tokens from its own subscriber, a moment later.
     deadline = time.monotonic() + 5.0
-    while any(o.clouds() != sorted(routers) for o in overlays.values()):
+    while any(o.clouds() != seen[n] for n, o in overlays.items()):
         assert time.monotonic() < deadline, {n: o.clouds() for n, o in overlays.items()}
         time.sleep(0.02)
     yield Federation(endpoints, routers, desks, overlays)
@@ -486,20 +500,20 @@ def test_the_sender_is_the_one_the_key_names(federation: Federation) -> None:
     assert a.dispatch("cloud-b", Dispatch(robot="b-1", command=GO)).ok
     assert a.reserve("cloud-b", Reservation(request_id="r-1", robots=["b-1"])).taken == []
     # A payload that claims another origin changes nothing: the key decides.
-    claim = json.dumps({"origin": "cloud-a", "request_id": "r-1", "robots": ["b-1"]})
-    assert (
-        len(
-            ask(federation.routers["cloud-c"], keys.command("cloud-b", "cloud-c", "release"), claim)
-        )
-        == 1
-    )
+    claim = json.dumps({"origin": "cloud-c", "request_id": "r-1", "robots": ["b-1"]})
+    release = keys.command("cloud-b", "cloud-a", "release")
+    assert len(ask(federation.routers["cloud-a"], release, claim)) == 1
     assert desks["cloud-b"].commands == [
         ("dispatch", "cloud-a"),
         ("reserve", "cloud-a"),
-        ("release", "cloud-c"),
+        ("release", "cloud-a"),
     ]
-    assert c.loans("cloud-b", LoanQuery()).cloud == "cloud-b"
-    assert desks["cloud-b"].commands[-1] == ("loans", "cloud-c")
+    # cloud-c, trusting only cloud-a, does not even see cloud-b's command keys.
+    assert ask(federation.routers["cloud-c"], keys.command("cloud-b", "cloud-c", "loans")) == []
+    assert a.loans("cloud-b", LoanQuery()).cloud == "cloud-b"
+    assert desks["cloud-b"].commands[-1] == ("loans", "cloud-a")
+    with pytest.raises(Unreachable, match="not a cloud cloud-c trusts"):
+        c.loans("cloud-b", LoanQuery())
 
 
 def test_a_cloud_cannot_send_as_another(federation: Federation) -> None:
@@ -534,12 +548,17 @@ def test_an_untrusted_cloud_sends_no_command(federation: Federation) -> None:
     assert federation.desks["cloud-c"].commands == [("release", "cloud-a")]
 
 
-def test_questions_stay_open_to_every_cloud_of_the_ca(federation: Federation) -> None:
-    c = federation.overlays["cloud-c"]
-    assert c.clouds() == ["cloud-a", "cloud-b", "cloud-c"]
-    assert [info.cloud for info in c.infos()] == ["cloud-a", "cloud-b", "cloud-c"]
-    assert sorted(c.gather_idle(IdleQuery(origin="cloud-c")).replies) == ["cloud-a", "cloud-b"]
-    status = c.status("cloud-b", StatusQuery(home="cloud-c", request_ids=["r-9"]))
+def test_a_cloud_hears_only_the_clouds_it_trusts(federation: Federation) -> None:
+    """cloud-c trusts cloud-a only: cloud-b's presence and answers never reach it."""
+    c, b = federation.overlays["cloud-c"], federation.overlays["cloud-b"]
+    assert c.clouds() == ["cloud-a", "cloud-c"]
+    assert [info.cloud for info in c.infos()] == ["cloud-a", "cloud-c"]
+    assert sorted(c.gather_idle(IdleQuery(origin="cloud-c")).replies) == ["cloud-a"]
+    with pytest.raises(Unreachable, match="not a cloud cloud-c trusts"):
+        c.status("cloud-b", StatusQuery(home="cloud-c", request_ids=["r-9"]))
+    # cloud-b trusts cloud-c, and hears its answers to the questions.
+    assert b.clouds() == ["cloud-a", "cloud-b", "cloud-c"]
+    status = b.status("cloud-c", StatusQuery(home="cloud-b", request_ids=["r-9"]))
     assert [s.known for s in status.requests] == [False]
 
 
@@ -571,4 +590,93 @@ def test_wide_queries_and_robot_keys_are_closed_to_other_clouds(
     assert ask_until(tool, "robocloud/cloud-b/robots/b-1/cmd") == ["ack"]
     assert len(ask(tool, keys.command("cloud-b", "cloud-a", "dispatch"), payload)) == 1
     assert desks["cloud-b"].commands == [("dispatch", "cloud-a")]
+    kept.undeclare()  # type: ignore[no-untyped-call]
+
+
+# -- identities the router enforces: attacks with legitimate certificates ---------------
+
+
+def test_a_robot_certificate_cannot_fabricate_or_answer_for_a_cloud(
+    pki: Pki, federation: Federation, sessions: Callable[[zenoh.Session], zenoh.Session]
+) -> None:
+    """cloud-b's robots' certificate on cloud-a's router: presence tokens for cloud-zzz and
+    cloud-b, answers on their keys, states on cloud-b's keys. cloud-a's router drops them all."""
+    a_router, a = federation.routers["cloud-a"], federation.overlays["cloud-a"]
+    robot = sessions(
+        open_client([federation.endpoints["cloud-a"]], security=pki.security("cloud-b-robots"))
+    )
+    zid = str(robot.zid())
+    kept = [
+        robot.liveliness().declare_token(keys.cloud_token("cloud-zzz", zid)),
+        robot.liveliness().declare_token(keys.cloud_token("cloud-b", zid)),
+        answer(robot, "robocloud/cloud-zzz/info", '{"cloud": "cloud-zzz", "robots": 3, "idle": 3}'),
+        answer(robot, "robocloud/cloud-b/status", '{"requests": []}'),
+    ]
+    heard: list[str] = []
+    states = a_router.declare_subscriber(
+        "robocloud/*/robots/*/state", lambda sample: heard.append(str(sample.key_expr))
+    )
+    robot.put("robocloud/cloud-b/robots/b-1/state", "{}")
+    # A control the router does let in: the robot's liveliness subscription.
+    assert wait_for_liveliness(robot, f"{CLOUDS_TOKEN}/cloud-a/*", 5.0)
+    assert not wait_for_liveliness(a_router, f"{CLOUDS_TOKEN}/cloud-zzz/*", 0.5)
+    assert a.clouds() == ["cloud-a", "cloud-b", "cloud-c"]
+    assert [info.cloud for info in a.infos()] == ["cloud-a", "cloud-b", "cloud-c"]
+    status = a.status("cloud-b", StatusQuery(home="cloud-a", request_ids=["r-1"]))
+    assert [s.known for s in status.requests] == [False]  # cloud-b's Desk: known False
+    assert a.presence.refusals() == {}  # nothing forged even reached the asker
+    assert heard == []
+    states.undeclare()  # type: ignore[no-untyped-call]
+    for each in kept:
+        each.undeclare()  # type: ignore[no-untyped-call]
+
+
+def test_a_member_cloud_cannot_declare_or_answer_for_another(
+    pki: Pki, federation: Federation, sessions: Callable[[zenoh.Session], zenoh.Session]
+) -> None:
+    """cloud-c's certificate (trusted by cloud-a) claims cloud-b's presence and answers
+    cloud-b's status at cloud-a's router: dropped there."""
+    a = federation.overlays["cloud-a"]
+    member = sessions(
+        open_client([federation.endpoints["cloud-a"]], security=pki.security("cloud-c"))
+    )
+    zid = str(member.zid())
+    kept = [
+        member.liveliness().declare_token(keys.cloud_token("cloud-b", zid)),
+        answer(member, "robocloud/cloud-b/status", '{"requests": []}'),
+        answer(member, "robocloud/cloud-b/from/*/reserve", '{"taken": ["b-1"], "error": "x"}'),
+    ]
+    # Its own keys pass (the control): a queryable on robocloud/cloud-c/... reaches cloud-a.
+    own = answer(member, "robocloud/cloud-c/probe", "c")
+    assert ask_until(federation.routers["cloud-a"], "robocloud/cloud-c/probe") == ["c"]
+    assert a.clouds() == ["cloud-a", "cloud-b", "cloud-c"]  # cloud-b not disputed
+    for _ in range(3):
+        assert a.reserve("cloud-b", Reservation(request_id="r-1", robots=["b-1"])).taken == []
+    assert a.presence.refusals() == {}
+    for each in (*kept, own):
+        each.undeclare()  # type: ignore[no-untyped-call]
+
+
+def test_a_fleet_certificate_speaks_on_its_own_clouds_robot_keys(
+    pki: Pki, federation: Federation, sessions: Callable[[zenoh.Session], zenoh.Session]
+) -> None:
+    """The control of the attacks above: cloud-b's robots at cloud-b's router are heard."""
+    b_router = federation.routers["cloud-b"]
+    heard: list[str] = []
+    states = b_router.declare_subscriber(
+        "robocloud/**", lambda sample: heard.append(str(sample.key_expr))
+    )
+    robot = sessions(
+        open_client([federation.endpoints["cloud-b"]], security=pki.security("cloud-b-robots"))
+    )
+    kept = answer(robot, "robocloud/cloud-b/robots/b-1/cmd", "ack")
+    assert ask_until(b_router, "robocloud/cloud-b/robots/b-1/cmd") == ["ack"]
+    robot.put("robocloud/cloud-a/robots/a-1/state", "{}")  # another cloud's: dropped
+    robot.put("robocloud/cloud-b/robots/b-1/state", "{}")
+    deadline = time.monotonic() + 5.0
+    while "robocloud/cloud-b/robots/b-1/state" not in heard:
+        assert time.monotonic() < deadline, heard
+        time.sleep(0.02)
+    assert "robocloud/cloud-a/robots/a-1/state" not in heard
+    states.undeclare()  # type: ignore[no-untyped-call]
     kept.undeclare()  # type: ignore[no-untyped-call]

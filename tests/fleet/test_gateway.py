@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import threading
+import time
 from collections.abc import Iterator
 from typing import Any
 
@@ -24,6 +25,7 @@ from robocloud.sim.roster import cloud_robots
 
 CLOUD = "cloud-g"
 FLEET = 40
+NOW = time.time()
 
 
 def state(robot_id: str, seq: int = 1, **changes: Any) -> dict[str, Any]:
@@ -39,7 +41,7 @@ def state(robot_id: str, seq: int = 1, **changes: Any) -> dict[str, Any]:
         "capabilities": {"grabber": {"kind": "actuating", "time": 60.0, "cost": 8.0}},
         "task": None,
         "seq": seq,
-        "sent_at": 1000.0 + seq,
+        "sent_at": NOW + seq,  # within the IaaS's clock skew bound
     }
     fields.update(changes)
     return fields

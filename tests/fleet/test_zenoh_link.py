@@ -22,6 +22,7 @@ from robocloud.fleet import (
 )
 
 GO = Assign(request_id="r-1", location=[10.0, 0.0], capabilities=["grabber"])
+NOW = time.time()
 
 
 def state(robot_id: str = "a-0001", seq: int = 1, **changes: object) -> bytes:
@@ -37,7 +38,7 @@ def state(robot_id: str = "a-0001", seq: int = 1, **changes: object) -> bytes:
         "capabilities": {"grabber": {"kind": "actuating", "time": 60.0, "cost": 8.0}},
         "task": None,
         "seq": seq,
-        "sent_at": 1000.0 + seq,
+        "sent_at": NOW + seq,  # within the IaaS's clock skew bound
     }
     fields.update(changes)
     return json.dumps(fields).encode()
@@ -210,8 +211,11 @@ def test_a_refused_state_is_answered_on_the_robots_error_key_and_logged(
         client.put(keys.state_key("cloud-a", "a-0101"), state("a-0102"))
         # Fragmented on the wire: BLOCK, as Zenoh's default (DROP) may drop it when the
         # puts just before fill the queue.
-        client.put(keys.state_key("cloud-a", "a-0103"), b"x" * 70_000,
-                   congestion_control=zenoh.CongestionControl.BLOCK)
+        client.put(
+            keys.state_key("cloud-a", "a-0103"),
+            b"x" * 70_000,
+            congestion_control=zenoh.CongestionControl.BLOCK,
+        )
         assert wait_until(lambda: len(answers) >= 3), [a["key"] for a in answers]
         # The valid one (battery 0.5 %) was taken.
         assert wait_until(lambda: "a-0100" in link.states())
@@ -232,5 +236,41 @@ def test_a_refused_state_is_answered_on_the_robots_error_key_and_logged(
     assert "70000 bytes" in str(by_key["robocloud/cloud-a/robots/a-0103/error"]["error"])
     logged = [r.getMessage() for r in caplog.records if "refused a state" in r.getMessage()]
     assert any("a-0100/state (field kind): kind is missing." in line for line in logged)
-    assert any("(field battery): battery: input should be less than or equal to 100" in line
-               for line in logged), logged
+    assert any(
+        "(field battery): battery: input should be less than or equal to 100" in line
+        for line in logged
+    ), logged
+
+
+def test_a_forged_state_cannot_hide_a_robot(
+    network: tuple[zenoh.Session, zenoh.Session],
+) -> None:
+    """The attacker re-publishes a robot's state with a huge seq and a far sent_at."""
+    router, client = network
+    clock = Clock()
+    errors: list[dict[str, object]] = []
+    told = client.declare_subscriber(
+        keys.error_key("cloud-a", "a-0100"),
+        lambda s: errors.append(json.loads(s.payload.to_bytes())),
+    )
+    key = keys.state_key("cloud-a", "a-0100")
+    with ZenohRobotLink(router, "cloud-a", offline_after=5.0, clock=clock) as link:
+        time.sleep(0.1)  # the subscription reaches the client
+        client.put(key, state("a-0100", seq=1))
+        assert wait_until(lambda: "a-0100" in link.states())
+        # Far in the future: refused, with a sentence on the robot's error key.
+        client.put(key, state("a-0100", seq=2**62, sent_at=1e15, battery=1.0))
+        assert wait_until(lambda: errors)
+        assert errors[0]["field"] == "sent_at"
+        assert "ahead of this IaaS's clock; at most 300 s apart" in str(errors[0]["error"])
+        client.put(key, state("a-0100", seq=2, battery=80.0))
+        assert wait_until(lambda: link.states()["a-0100"].battery == 80.0)
+        # Within the bound but ahead of every real state: held until the
+        # robot's clock passes it (at most the bound), then the robot is back.
+        client.put(key, state("a-0100", seq=2**62, sent_at=NOW + 250, battery=2.0))
+        assert wait_until(lambda: link.states()["a-0100"].battery == 2.0)
+        client.put(key, state("a-0100", seq=3, battery=70.0))  # dropped: older than held
+        client.put(key, state("a-0100", seq=4, sent_at=NOW + 251, battery=60.0))
+        assert wait_until(lambda: link.states()["a-0100"].battery == 60.0)
+        assert {r.id: r.status for r in link.robots()}["a-0100"] == "idle"
+    told.undeclare()  # type: ignore[no-untyped-call]

@@ -274,6 +274,41 @@ def test_a_confirm_without_a_lease_is_refused(federation: tuple[list[Cloud], Pat
     assert now[idle[0]]["status"] == "idle" and now[idle[0]]["request"] is None
 
 
+def test_a_robot_certificate_fabricates_no_cloud(federation: tuple[list[Cloud], Path]) -> None:
+    """The issue's first attack: cloud-b's robots' certificate at cloud-a's router declares
+    cloud-zzz and claims cloud-b, with answers on their keys. cloud-a's router drops it all."""
+    (a, _, _), certs = federation
+    robots = session_as(a, certs, "cloud-b-robots")
+    zid = str(robots.zid())
+    zzz = '{"cloud": "cloud-zzz", "robots": 3, "idle": 3}'
+    over = '{"requests": [{"request_id": "x", "known": false}]}'
+    kept: list[Any] = [
+        robots.liveliness().declare_token(keys.cloud_token("cloud-zzz", zid)),
+        robots.liveliness().declare_token(keys.cloud_token("cloud-b", zid)),
+        robots.declare_queryable(
+            "robocloud/cloud-zzz/*", lambda query: query.reply(query.key_expr, zzz)
+        ),
+        robots.declare_queryable(
+            "robocloud/cloud-b/status", lambda query: query.reply(query.key_expr, over)
+        ),
+    ]
+    try:
+        # An answer to a question it may ask: its link is up, its declarations passed before.
+        wait_until(
+            lambda: [r for r in robots.get("robocloud/cloud-a/info", timeout=1.0) if r.ok],
+            10,
+            "cloud-a to answer the robot's question",
+        )
+        with a.client() as client:
+            clouds = [c["cloud"] for c in client.get("/v1/clouds").json()]
+        assert clouds == ["cloud-a", "cloud-b", "cloud-c"]
+    finally:
+        for each in kept:
+            each.undeclare()
+        robots.close()  # type: ignore[no-untyped-call]
+    assert "cloud-zzz" not in log_of(a)
+
+
 def test_an_origin_that_disappears_loses_its_loans_and_learns_it_back(
     federation: tuple[list[Cloud], Path],
 ) -> None:

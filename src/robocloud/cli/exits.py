@@ -23,6 +23,7 @@ import sys
 import traceback
 from collections.abc import Callable
 
+from robocloud import logs
 from robocloud.errors import InvalidInput, NotFound, RoboCloudError
 
 EXIT_OK = 0
@@ -42,6 +43,7 @@ def exit_code(error: RoboCloudError) -> int:
 
 def run(command: Command, args: argparse.Namespace, name: str = "the command") -> int:
     """``command(args)``, every way it can end turned into an exit code and a sentence."""
+    logs.install()  # every log line of every command escapes control characters
     # getattr: a command may have no --log-level.
     debug = getattr(args, "log_level", "") == "debug"
     try:

@@ -196,6 +196,14 @@ def add_iaas_arguments(parser: argparse.ArgumentParser) -> None:
         help="the longest lease on a robot lent to another cloud until its dispatch (default 30)",
     )
     parser.add_argument(
+        "--lend-share",
+        type=float,
+        default=0.5,
+        metavar="FRACTION",
+        help="the most of this cloud's robots one other cloud may hold at once, 0 to 1 "
+        "(default 0.5; docs/security.md)",
+    )
+    parser.add_argument(
         "--origin-deadline",
         type=float,
         default=60.0,
@@ -294,6 +302,11 @@ def iaas_settings(args: argparse.Namespace) -> Settings:
         raise InvalidInput(
             f"--max-waiting must be 1 to 1000000, not {args.max_waiting}.", "--max-waiting"
         )
+    if not 0 <= args.lend_share <= 1:  # also refuses nan
+        raise InvalidInput(
+            f"--lend-share must be 0 to 1 (a share of the robots), not {args.lend_share}.",
+            "--lend-share",
+        )
     for flag in ("--lease-max", "--origin-deadline"):
         value = getattr(args, flag.removeprefix("--").replace("-", "_"))
         if not 0 < value <= 86_400:
@@ -324,6 +337,7 @@ def iaas_settings(args: argparse.Namespace) -> Settings:
         forget_after=args.forget_after,
         time_scale=args.time_scale,
         lease_max=args.lease_max,
+        lend_share=args.lend_share,
         origin_deadline=args.origin_deadline,
         selection_budget=args.selection_budget,
         selection_workers=args.selection_workers,

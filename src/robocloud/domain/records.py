@@ -14,6 +14,7 @@ forbids raw control characters in strings, so only an escape can make one);
 
 from __future__ import annotations
 
+import re
 from typing import Annotated, Literal
 
 import msgspec
@@ -25,7 +26,11 @@ from robocloud.domain.robot import (
     MAX_NAME_LENGTH,
     MAX_SPEED,
     MIN_SPEED,
+    NAME_CHARACTERS,
 )
+
+# What a name may not hold and JSON lets stand unescaped.
+_RAW_REFUSED = re.compile("[\x7f-\x9f\u202a-\u202e\u2066-\u2069]")
 
 # ``Robot``'s limits, as msgspec constraints. A bound also refuses NaN and the
 # infinities, as ``allow_inf_nan=False`` does.
@@ -33,7 +38,7 @@ RecordName = Annotated[str, msgspec.Meta(min_length=1, max_length=MAX_NAME_LENGT
 # The names' pattern, anchored with \Z: Python's $ also matches before a final
 # newline, pydantic's (Rust) $ does not.
 CheckedName = Annotated[
-    str, msgspec.Meta(min_length=1, max_length=MAX_NAME_LENGTH, pattern=r"^[^\x00-\x1f\x7f]+\Z")
+    str, msgspec.Meta(min_length=1, max_length=MAX_NAME_LENGTH, pattern=rf"^{NAME_CHARACTERS}+\Z")
 ]
 _Amount = Annotated[float, msgspec.Meta(ge=0.0, le=MAX_AMOUNT)]
 _Coordinate = Annotated[float, msgspec.Meta(ge=-MAX_COORDINATE, le=MAX_COORDINATE)]
@@ -76,10 +81,17 @@ class CheckedRobotRecord(RobotRecord, frozen=True, gc=False):
 def may_hold_control_characters(document: bytes | str) -> bool:
     """Whether a JSON document may hold a name the names' rule refuses.
 
-    JSON forbids raw control characters in strings, so only an escape (a
-    backslash) can make one; DEL may stand raw. Without either, no name in
-    the document can break the rule and ``RobotRecord`` may skip its check.
+    JSON forbids raw C0 control characters in strings, so only an escape (a
+    backslash) can make one; DEL, the C1 controls and the bidirectional
+    overrides may stand raw. Without any, no name in the document can break
+    the rule and ``RobotRecord`` may skip its check.
     """
     if isinstance(document, bytes):
-        return b"\\" in document or b"\x7f" in document
-    return "\\" in document or "\x7f" in document
+        return (
+            b"\\" in document
+            or b"\x7f" in document
+            or b"\xc2" in document  # C1 controls, U+0080-U+009F, in UTF-8
+            or b"\xe2\x80" in document  # U+202A-U+202E
+            or b"\xe2\x81" in document  # U+2066-U+2069
+        )
+    return "\\" in document or _RAW_REFUSED.search(document) is not None

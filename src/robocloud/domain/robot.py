@@ -15,10 +15,14 @@ from robocloud.errors import explained
 MAX_COORDINATE = 1e7  # metres from the origin (10,000 km)
 MIN_SPEED, MAX_SPEED = 0.001, 1000.0  # m/s
 MAX_AMOUNT = 1e9  # a capability's time (s) or cost, a travel cost per metre
-# A name or id: printable, one line. PostgreSQL refuses NUL in text, and a
-# control character in an id would corrupt logs and keys.
+# A name or id: printable, one line. PostgreSQL refuses NUL in text; a
+# control character (C0, DEL, C1) in an id would corrupt logs and keys, and a
+# bidirectional override (U+202A-U+202E, U+2066-U+2069) would make a log line
+# or a page read otherwise than it is written.
+NAME_CHARACTERS = r"[^\x00-\x1f\x7f-\x9f\u202a-\u202e\u2066-\u2069]"
 NAME_PATTERN = explained(
-    r"^[^\x00-\x1f\x7f]+$", "printable text on one line (no control character)"
+    f"^{NAME_CHARACTERS}+$",
+    "printable text on one line (no control character or bidirectional override)",
 )
 MAX_NAME_LENGTH = 128
 MAX_BATTERY = 100.0

@@ -22,7 +22,6 @@ MAX_TIME = 1e9  # seconds (about 31 years)
 MAX_CAPABILITIES = 100
 
 
-
 def _integral(value: object) -> object:
     """3.0 is the integer 3, as JSON Schema's ``integer`` says; 3.5 stays a float (refused)."""
     if isinstance(value, float) and value.is_integer():

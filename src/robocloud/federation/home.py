@@ -31,6 +31,7 @@ from __future__ import annotations
 import json
 import logging
 import threading
+import time
 from collections.abc import Callable, Iterable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -39,6 +40,16 @@ from datetime import datetime, timedelta
 from robocloud.domain import Robot, is_final
 from robocloud.errors import RoboCloudError
 from robocloud.federation.capabilities import Announced
+from robocloud.federation.lending import (
+    LEND_MIN_BATTERY,
+    LEND_SHARE,
+    RESERVE_BURST,
+    RESERVE_RATE,
+    ReserveRate,
+    Undispatched,
+    over_share,
+    unfit,
+)
 from robocloud.federation.messages import (
     MAX_ITEMS,
     CloudInfo,
@@ -119,7 +130,10 @@ class Home:
         *,
         lease_max: float = LEASE_MAX,
         origin_deadline: float = ORIGIN_DEADLINE,
+        lend_share: float = LEND_SHARE,
+        reserve_rate: float = RESERVE_RATE,
         coalition_of: Callable[[str], list[str]] = lambda request_id: [],
+        monotonic: Callable[[], float] = time.monotonic,
         clock: Callable[[], datetime] = utc_now,
     ) -> None:
         self.cloud = cloud
@@ -131,12 +145,16 @@ class Home:
         self.announced = Announced()
         self.lease_max = lease_max
         self.origin_deadline = origin_deadline
+        self.lend_share = lend_share
+        self.reserve_rate = ReserveRate(monotonic, reserve_rate, RESERVE_BURST)
+        self._undispatched = Undispatched(cloud, lease_max, monotonic)
         # The robots working for one of this cloud's requests now (the IaaS's
         # RobotRoutes): what another cloud that lent some is told.
         self.coalition_of = coalition_of
         self._clock = clock
         self._lock = threading.Lock()
         self._lent: dict[str, _Lent] = {}
+        self._bound_refusals: dict[str, int] = {}  # origin -> reserves refused by a bound
         self._dispatched: set[tuple[str, str]] = set()  # (robot, request): accepted its dispatch
         self._robot_json: dict[str, tuple[Robot, bytes]] = {}  # id -> (the Robot, its JSON)
         # Commands that came with a reservation, sent to their robots at once.
@@ -185,7 +203,7 @@ class Home:
         """
         # The scatter-gather reaches this cloud's own desk too: its robots are
         # already in the view, so they need not travel.
-        if query.origin == self.cloud or not self._trusts(query.origin):
+        if query.origin == self.cloud or not self.trusts(query.origin):
             return self._idle_reply([])
         held = self.store.reservations()
         wanted = set(query.capabilities)
@@ -259,12 +277,14 @@ class Home:
         refusal = self._check(origin, "reserve", reservation.robots)
         if refusal is None:
             refusal = _stray_commands(reservation)
+        if refusal is None:
+            refusal, lease = self._bounds(origin, reservation)
         if refusal:
             return ReserveReply(taken=list(reservation.robots), error=refusal)
-        lease = min(reservation.lease_seconds or self.lease_max, self.lease_max)
         taken = self.store.lend(origin, reservation.request_id, reservation.robots, lease)
         if taken:
             return ReserveReply(taken=taken)
+        self._undispatched.record(origin, reservation.robots, lease)
         self._lent_now(origin, reservation.request_id, reservation.robots, lease)
         commands = reservation.dispatch
         if len(commands) > 1:  # the robots answer at once, not one after the other
@@ -335,6 +355,7 @@ class Home:
             return Ack.refuse(robot, request_id, error)
         ack = self.link.assign(robot, command)
         if ack.ok:
+            self._undispatched.dispatched(origin, robot)
             # Now the origin may confirm the lease (firm). Kept in memory, not
             # written: the origin confirms at once, and the robot's own state
             # tells the same after a restart of this IaaS.
@@ -362,7 +383,7 @@ class Home:
 
     def loans(self, origin: str, query: LoanQuery) -> LoanReply:
         """What the origin asks once it is back: the loans this home ended without it."""
-        if not self._trusts(origin):
+        if not self.trusts(origin):
             return LoanReply(cloud=self.cloud)
         for loan in self.store.told(origin, query.told):
             log.info(
@@ -385,13 +406,60 @@ class Home:
 
     # -- checks ------------------------------------------------------------------------
 
-    def _trusts(self, origin: str) -> bool:
+    def _bounds(self, origin: str, reservation: Reservation) -> tuple[str | None, float]:
+        """(why the reservation exceeds a lending bound, or None; the lease to grant).
+
+        The bounds of ``robocloud.federation.lending``: the rate, the robots'
+        fitness, the origin's share, and ``lease_max`` from the first reservation
+        (``Undispatched``: renewals, other request ids and releases in between
+        included).
+        """
+        request_id, robots = reservation.request_id, reservation.robots
+        refusal = self.reserve_rate.take(origin)
+        asked = min(reservation.lease_seconds or self.lease_max, self.lease_max)
+        lease = asked
+        if refusal is None:
+            held = self.store.loans(origin)
+            mine = {loan.robot for loan in held if loan.request_id == request_id}
+            # Robots another holds are left to the store, which answers them taken.
+            new = [r for r in robots if r not in mine and self._holder(r) is None]
+            fleet = self.link.robots()
+            refusal = unfit(new, {r.id: r for r in fleet}, LEND_MIN_BATTERY) or over_share(
+                origin, len(held), len(new), len(fleet), self.lend_share, self.cloud
+            )
+            if refusal is None:
+                ours = [r for r in robots if r in mine or r in new]
+                lease, refusal = self._undispatched.grant(origin, ours, asked)
+        if refusal is not None:
+            self._refused_bound(origin, request_id, refusal)
+        return refusal, lease
+
+    def bound_refusals(self) -> dict[str, int]:
+        """Reservations refused by a lending bound, by origin (a copy: the metric)."""
+        with self._lock:
+            return dict(self._bound_refusals)
+
+    def _refused_bound(self, origin: str, request_id: str, refusal: str) -> None:
+        """Log a reservation refused by a bound: the first of each origin, then every 100th."""
+        with self._lock:
+            count = self._bound_refusals[origin] = self._bound_refusals.get(origin, 0) + 1
+        if count == 1 or count % 100 == 0:
+            log.warning(
+                "refused a reserve from %s for request %s (%d so far): %s",
+                origin,
+                request_id,
+                count,
+                refusal,
+            )
+
+    def trusts(self, origin: str) -> bool:
+        """Whether this home lends to, and borrows from, ``origin`` (itself included)."""
         return self.trusted is None or origin in self.trusted or origin == self.cloud
 
     def _check(self, origin: str, what: str, robots: Iterable[str]) -> str | None:
         if not origin:
             return "a command must come on a key that names its sender."
-        if not self._trusts(origin):
+        if not self.trusts(origin):
             error = f"{self.cloud} does not trust {origin}."
             log.warning("refused a %s from %s: %s", what, origin, error)
             return error

@@ -4,7 +4,9 @@
 
     robocloud/<cloud>/<question>               info, idle, fleet, status: open to all members
     robocloud/<home>/from/<origin>/<command>   reserve, confirm, release, dispatch, cancel, loans
-    robocloud/federation/clouds/<cloud>        liveliness token of a cloud's IaaS
+    robocloud/federation/clouds/<cloud>/<zid>  liveliness token of a cloud's IaaS: its
+                                               Zenoh session id, the only one whose
+                                               replies speak for the cloud
 
 A command is sent on a key that names its sender (the origin), and the home
 takes the origin from the key, never from the payload. With mutual TLS the
@@ -47,5 +49,21 @@ def sender_of(key: str) -> str | None:
     return parts[3] or None
 
 
-def cloud_token(cloud: str) -> str:
-    return f"{CLOUDS_TOKEN}/{check_chunk(cloud, 'cloud')}"
+def cloud_token(cloud: str, zid: str) -> str:
+    """The presence token of ``cloud``'s IaaS, whose Zenoh session is ``zid``."""
+    return f"{CLOUDS_TOKEN}/{check_chunk(cloud, 'cloud')}/{check_chunk(zid, 'session')}"
+
+
+def all_cloud_tokens() -> str:
+    return f"{CLOUDS_TOKEN}/*/*"
+
+
+def token_owner(key: str) -> tuple[str, str] | None:
+    """(cloud, session id) of a presence token's key; None for another key."""
+    prefix = f"{CLOUDS_TOKEN}/"
+    if not key.startswith(prefix):
+        return None
+    parts = key[len(prefix) :].split("/")
+    if len(parts) != 2 or not all(parts):
+        return None
+    return parts[0], parts[1]

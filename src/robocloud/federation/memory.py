@@ -84,6 +84,12 @@ class MemoryNetwork:
             self._cut.discard(cloud)
             self._muted.discard(cloud)
 
+    def trusts(self, cloud: str) -> Callable[[str], bool]:
+        """Whom ``cloud`` trusts: its desk says."""
+        with self._lock:
+            desk = self._desks.get(cloud)
+        return desk.trusts if desk is not None else (lambda _: False)
+
     def live(self) -> list[str]:
         with self._lock:
             return sorted(set(self._desks) - self._cut)
@@ -134,7 +140,11 @@ class MemoryOverlay(HomeCommands):
         return self._cloud
 
     def clouds(self) -> list[str]:
-        return self._network.live() if self._reachable() else [self.cloud]
+        """The live clouds this one trusts (as ``ZenohOverlay``'s presence keeps them)."""
+        if not self._reachable():
+            return [self.cloud]
+        trusts = self._network.trusts(self.cloud)
+        return [c for c in self._network.live() if trusts(c)]
 
     def infos(self) -> list[CloudInfo]:
         return sorted(

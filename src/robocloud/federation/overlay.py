@@ -12,6 +12,11 @@ other clouds ask (its idle robots, loans, dispatch to its robots). A command
 reaches the desk with the sender's name taken from the key it came on
 (``robocloud.federation.keys``), never from its payload.
 
+A reply counts only when it comes from the Zenoh session that declared the
+presence of the cloud asked (``robocloud.federation.presence``), and only
+clouds this one trusts are asked or believed (``HomeDesk.trusts``): the
+others' replies are dropped, logged and counted.
+
 Zenoh queries are answered on a small thread pool, never on Zenoh's own
 threads, because answering may itself send queries (a dispatch asks the robot).
 """
@@ -49,10 +54,12 @@ from robocloud.federation.messages import (
     StatusReply,
     decode_idle_reply,
 )
+from robocloud.federation.presence import Presence
 from robocloud.fleet import keys as robot_keys
 from robocloud.fleet.ingest import StateReader
 from robocloud.fleet.link import LatestStates, StateListener
 from robocloud.fleet.messages import Ack, State
+from robocloud.fleet.state_errors import clock_refusal
 
 logger = logging.getLogger(__name__)
 
@@ -70,10 +77,15 @@ class HomeDesk(Protocol):
     named by the key they came on.
     """
 
+    def trusts(self, cloud: str) -> bool:
+        """Whether this cloud lends to, and borrows from, ``cloud`` (itself included)."""
+        ...
+
     def info(self) -> CloudInfo: ...
     def idle_robots(self, query: IdleQuery) -> bytes:
         """The ``IdleReply``'s JSON (written by the home: it is on every selection's path)."""
         ...
+
     def fleet(self) -> FleetReply: ...
     def status(self, query: StatusQuery) -> StatusReply: ...
     def reserve(self, origin: str, reservation: Reservation) -> ReserveReply: ...
@@ -235,27 +247,27 @@ class ZenohOverlay(HomeCommands):
         self._lock = threading.Lock()
         handlers = desk_handlers(desk)
         self._desk = desk
+        self._zid = str(session.zid())
+        self.presence = Presence(cloud, self._zid, desk.trusts)
         self._queryables = [
             session.declare_queryable(
                 keys.question(cloud, name)
                 if name in keys.QUESTIONS
                 else keys.command(cloud, "*", name),
-                self._handler(handlers[name], self._asking if name in keys.QUESTIONS
-                              else self._pool),
+                self._handler(
+                    handlers[name], self._asking if name in keys.QUESTIONS else self._pool, name
+                ),
             )
             for name in (*keys.QUESTIONS, *keys.COMMANDS)
         ]
         # The live clouds, kept by their tokens' comings and goings: a selection
         # asks which clouds to wait for, and a query per selection cost more
         # than the selection (the liveliness get waits for its timeout).
-        self._live: set[str] = set()
-        self._clouds: list[str] = [cloud]  # sorted, this one included
-        self._presence_lock = threading.Lock()
         self._presence = session.liveliness().declare_subscriber(
-            f"{keys.CLOUDS_TOKEN}/*", self._on_presence, history=True
+            keys.all_cloud_tokens(), self._on_presence, history=True
         )
         # Declared last: a cloud that sees the token can query every key above.
-        self._token = session.liveliness().declare_token(keys.cloud_token(cloud))
+        self._token = session.liveliness().declare_token(keys.cloud_token(cloud, self._zid))
 
     @property
     def cloud(self) -> str:
@@ -265,25 +277,25 @@ class ZenohOverlay(HomeCommands):
 
     def clouds(self) -> list[str]:
         # A copy replaced whole, read without a lock: the event loop asks it.
-        return list(self._clouds)
+        return self.presence.clouds()
 
     def _on_presence(self, sample: zenoh.Sample) -> None:
-        name = str(sample.key_expr).rsplit("/", 1)[-1]
-        with self._presence_lock:
-            if sample.kind == zenoh.SampleKind.PUT:
-                self._live.add(name)
-            else:
-                self._live.discard(name)
-            self._clouds = sorted(self._live | {self._cloud})
+        owner = keys.token_owner(str(sample.key_expr))
+        if owner is None:
+            return
+        if sample.kind == zenoh.SampleKind.PUT:
+            self.presence.came(*owner)
+        else:
+            self.presence.went(*owner)
 
     def infos(self) -> list[CloudInfo]:
         out = [self._desk.info()]
-        for reply in self._scatter("info", None):
+        for replier, reply in self._scatter("info", None):
             try:
                 info = CloudInfo.model_validate_json(reply)
             except pydantic.ValidationError:
                 continue
-            if info.cloud != self.cloud:
+            if info.cloud != self.cloud and self.presence.speaks_for(info.cloud, replier, "info"):
                 out.append(info)
         return sorted(out, key=lambda i: i.cloud)
 
@@ -295,13 +307,13 @@ class ZenohOverlay(HomeCommands):
         gathered = Gathered()
         if not expected:
             return gathered  # alone on the overlay: nobody to ask
-        for payload in self._scatter("idle", query, timeout):
+        for replier, payload in self._scatter("idle", query, timeout):
             try:
                 reply = decode_idle_reply(payload)
             except ValueError as error:
                 logger.warning("ignoring %s", error)
                 continue
-            if reply.cloud != self.cloud:
+            if reply.cloud != self.cloud and self.presence.speaks_for(reply.cloud, replier, "idle"):
                 gathered.replies[reply.cloud] = reply
         gathered.missing = sorted(expected - set(gathered.replies))
         gathered.elapsed_ms = (time.perf_counter() - started) * 1000
@@ -309,12 +321,14 @@ class ZenohOverlay(HomeCommands):
 
     def fleets(self) -> list[FleetReply]:
         out = []
-        for payload in self._scatter("fleet", None):
+        for replier, payload in self._scatter("fleet", None):
             try:
                 reply = FleetReply.model_validate_json(payload)
             except pydantic.ValidationError:
                 continue
-            if reply.cloud != self.cloud:
+            if reply.cloud != self.cloud and self.presence.speaks_for(
+                reply.cloud, replier, "fleet"
+            ):
                 out.append(reply)
         return out
 
@@ -413,15 +427,19 @@ class ZenohOverlay(HomeCommands):
     # -- internals ------------------------------------------------------------
 
     def _handler(
-        self, handler: Handler, threads: ThreadPoolExecutor
+        self, handler: Handler, threads: ThreadPoolExecutor, name: str
     ) -> Callable[[zenoh.Query], None]:
+        # A question asked of every cloud (robocloud/*/idle) is answered on this
+        # cloud's own key: the routers let a cloud reply on its own keys only.
+        own = keys.question(self.cloud, name) if name in keys.QUESTIONS else None
+
         def on_query(query: zenoh.Query) -> None:
             # Keep Zenoh's thread free: the answer may send queries itself.
-            threads.submit(self._answer, query, handler)
+            threads.submit(self._answer, query, handler, own)
 
         return on_query
 
-    def _answer(self, query: zenoh.Query, handler: Handler) -> None:
+    def _answer(self, query: zenoh.Query, handler: Handler, own: str | None) -> None:
         with query:
             key = str(query.key_expr)
             # A command's sender is the key's: the router let only that cloud send on it.
@@ -436,11 +454,12 @@ class ZenohOverlay(HomeCommands):
                 logger.exception("answering %s failed", key)
                 query.reply_err("internal error")
                 return
-            query.reply(query.key_expr, reply, encoding=zenoh.Encoding.APPLICATION_JSON)
+            query.reply(own or query.key_expr, reply, encoding=zenoh.Encoding.APPLICATION_JSON)
 
     def _scatter(
         self, name: str, message: pydantic.BaseModel | None, timeout: float | None = None
-    ) -> list[bytes]:
+    ) -> list[tuple[str | None, bytes]]:
+        """The ok replies of every cloud's ``name`` queryable: (the replier's session, payload)."""
         replies = self._session.get(
             keys.question("*", name),
             payload=message.model_dump_json() if message is not None else None,
@@ -451,7 +470,7 @@ class ZenohOverlay(HomeCommands):
             # would wait for it on this process's own threads.
             allowed_destination=zenoh.Locality.REMOTE,
         )
-        return [r.ok.payload.to_bytes() for r in replies if r.ok is not None]
+        return [(_replier(r), r.ok.payload.to_bytes()) for r in replies if r.ok is not None]
 
     def _command(self, home: str, name: str, message: pydantic.BaseModel, model: type[M]) -> M:
         return self._call(home, keys.command(home, self.cloud, name), name, message, model)
@@ -459,13 +478,32 @@ class ZenohOverlay(HomeCommands):
     def _call(
         self, cloud: str, key: str, name: str, message: pydantic.BaseModel, model: type[M]
     ) -> M:
+        """The reply of ``cloud``'s own session; other sessions' replies are dropped.
+
+        Every queryable on the key is asked (``QueryTarget.ALL``): with the
+        default, Zenoh may ask only the nearest, which a forger next to this
+        cloud's router would be.
+        """
+        if self.presence.owner(cloud) is None:
+            raise Unreachable(f"{cloud} is not a cloud {self.cloud} trusts on the overlay.")
         replies = self._session.get(
             key,
             payload=message.model_dump_json(),
             encoding=zenoh.Encoding.APPLICATION_JSON,
+            target=zenoh.QueryTarget.ALL,
+            consolidation=zenoh.ConsolidationMode.NONE,
             timeout=self._timeout,
         )
+        dropped = 0
+        timed_out = ""
         for reply in replies:
+            replier = _replier(reply)
+            if replier is None and reply.err is not None:
+                timed_out = reply.err.payload.to_string()  # Zenoh's own "Timeout"
+                break
+            if not self.presence.speaks_for(cloud, replier, name):
+                dropped += 1
+                continue
             if reply.ok is None:
                 detail = reply.err.payload.to_string() if reply.err is not None else "?"
                 raise Unreachable(f"{cloud} did not answer the {name}: {detail}.")
@@ -473,6 +511,13 @@ class ZenohOverlay(HomeCommands):
                 return model.model_validate_json(reply.ok.payload.to_bytes())
             except pydantic.ValidationError as error:
                 raise Unreachable(f"{cloud} answered the {name} with an invalid reply.") from error
+        if dropped:
+            raise Unreachable(
+                f"{cloud} did not answer the {name}; {dropped} replies from other sessions "
+                "were dropped."
+            )
+        if timed_out:
+            raise Unreachable(f"{cloud} did not answer the {name}: {timed_out}.")
         raise Unreachable(f"{cloud} is not reachable on the overlay.")
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
@@ -484,7 +529,9 @@ class ZenohOverlay(HomeCommands):
             return
         # A state counts only on its own robot's key (a state for a-1 sent on
         # b-2's key would otherwise pass for a-1's).
-        if robot_keys.robot_of(str(sample.key_expr)) == state.id:
+        if robot_keys.robot_of(str(sample.key_expr)) == state.id and not clock_refusal(
+            state, time.time()
+        ):
             self._watched.accept(state)
 
     def _on_batch(self, cloud: str, sample: zenoh.Sample) -> None:
@@ -496,4 +543,13 @@ class ZenohOverlay(HomeCommands):
         if not wanted:
             return
         states, _ = self._reader.read_batch(sample.payload.to_bytes(), only=wanted)
-        self._watched.accept_many(s for s in states if s.cloud == cloud)
+        now = time.time()
+        self._watched.accept_many(
+            s for s in states if s.cloud == cloud and not clock_refusal(s, now)
+        )
+
+
+def _replier(reply: zenoh.Reply) -> str | None:
+    """The Zenoh session id of whoever sent ``reply`` (as Zenoh reports it)."""
+    replier = reply.replier_id
+    return None if replier is None else str(replier.zid)

@@ -30,8 +30,10 @@ from robocloud.fleet.messages import Ack, Assign, Cancel, State
 from robocloud.fleet.state_errors import (
     MAX_BATCH_BYTES,
     MAX_BATCH_STATES,
+    MAX_CLOCK_SKEW,
     MAX_STATE_BYTES,
     StateErrors,
+    clock_refusal,
 )
 from robocloud.selection.columns import FleetColumns
 
@@ -166,7 +168,10 @@ class LatestStates:
         """Hold ``state`` if it is newer (the caller holds the lock)."""
         held = self._states.get(state.id)
         # A smaller seq sent later is a restarted robot; otherwise an old
-        # or repeated message.
+        # or repeated message (a reconnected robot may send its last one
+        # again). A state forged with a huge seq and a later sent_at hides
+        # the real robot only until the robot's clock passes that sent_at:
+        # the links refuse one more than MAX_CLOCK_SKEW ahead.
         if held is not None and state.seq <= held.seq and state.sent_at <= held.sent_at:
             return False
         if held is None and len(self._states) >= self.max_fleet:
@@ -311,7 +316,9 @@ class ZenohRobotLink:
     A robot silent for more than ``offline_after`` seconds is reported
     ``offline`` by ``robots()``; a command unanswered within
     ``command_timeout`` seconds is acknowledged not ok. A state that does not
-    validate is answered on the robot's error key (``StateErrors``).
+    validate, or whose ``sent_at`` is more than ``max_clock_skew`` seconds
+    from ``wall`` (this IaaS's clock), is answered on the robot's error key
+    (``StateErrors``).
     """
 
     def __init__(
@@ -323,8 +330,12 @@ class ZenohRobotLink:
         clock: Callable[[], float] = time.monotonic,
         forget_after: float = FORGET_AFTER,
         max_fleet: int = MAX_FLEET,
+        max_clock_skew: float = MAX_CLOCK_SKEW,
+        wall: Callable[[], float] = time.time,
     ) -> None:
         self._session = session
+        self._skew = max_clock_skew
+        self._wall = wall
         self._cloud = keys.check_chunk(cloud, "cloud")
         self._timeout = command_timeout
         self._latest = LatestStates(cloud, offline_after, clock, forget_after, max_fleet)
@@ -423,6 +434,10 @@ class ZenohRobotLink:
         if read.cloud != self._cloud or read.id != keys.robot_of(key):
             self._errors.mismatch(key, read)
             return
+        late = clock_refusal(read, self._wall(), self._skew)
+        if late is not None:
+            self._errors.refuse(key, "sent_at", late)
+            return
         self._latest.accept(read)
 
     def _on_batch(self, sample: zenoh.Sample) -> None:
@@ -452,8 +467,12 @@ class ZenohRobotLink:
         for refusal in refusals:
             self._errors.in_batch(key, refusal.robot, refusal.field, refusal.sentence)
         mine = []
+        now = self._wall()
         for state in states:
-            if state.cloud != self._cloud:
+            late = clock_refusal(state, now, self._skew)
+            if late is not None:
+                self._errors.in_batch(key, state.id, "sent_at", late)
+            elif state.cloud != self._cloud:
                 self._errors.in_batch(
                     key,
                     state.id,

@@ -26,6 +26,10 @@ from robocloud.fleet.messages import MAX_BATCH_STATES, State, StateError
 
 logger = logging.getLogger("robocloud.fleet.link")
 
+# Seconds a state's sent_at may be from the IaaS's clock. A state from far in
+# the future would otherwise pass for newer than every real one and hide the
+# robot (docs/protocol.md); one from far in the past is a replay.
+MAX_CLOCK_SKEW = 300.0
 MAX_STATE_BYTES = 64 * 1024  # a state of a robot with 100 capabilities is about 8 KiB
 __all__ = ["MAX_BATCH_STATES", "StateErrors"]
 MAX_BATCH_BYTES = 16 * 1024 * 1024  # one gateway batch
@@ -33,6 +37,18 @@ ANSWER_EVERY = 1.0  # seconds between two answers to one robot
 MAX_ANSWERS_PER_S = 200  # answers to all robots together
 LOG_EVERY = 60.0  # seconds between two log lines for one robot's repeated fault
 MAX_TRACKED = 10_000  # robots whose last answer and log line are remembered
+
+
+def clock_refusal(state: State, now: float, bound: float = MAX_CLOCK_SKEW) -> str | None:
+    """Why ``state`` is refused for its ``sent_at`` (``now``: the IaaS's unix time), or None."""
+    apart = state.sent_at - now
+    if abs(apart) <= bound:
+        return None
+    return (
+        f"sent_at: the state was sent at {state.sent_at:.3f}, {abs(apart):.0f} s "
+        f"{'ahead of' if apart > 0 else 'behind'} this IaaS's clock; at most {bound:g} s "
+        "apart are accepted (set the robot's clock)."
+    )
 
 
 def _chunk(value: str) -> bool:

@@ -102,6 +102,7 @@ async def build_cloud(
             api=f"http://{settings.host}:{settings.port}",
             lease_max=settings.lease_max,
             origin_deadline=settings.origin_deadline,
+            lend_share=settings.lend_share,
             coalition_of=routes.robots_of,
         )
         overlay = None
@@ -110,6 +111,7 @@ async def build_cloud(
                 session, settings.cloud, home, offline_after=settings.offline_after
             )
             stack.callback(overlay.close)
+            metrics.observe_refusals(overlay.presence.refusals, home.bound_refusals)
         view = FederationView(settings.cloud, store, link, overlay, settings.gather_timeout)
         service = RequestService(
             settings,

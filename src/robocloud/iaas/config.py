@@ -93,6 +93,7 @@ class Settings:
     # stay unreachable once its robot is idle or done before losing the loan.
     lease_max: float = 30.0
     origin_deadline: float = 60.0
+    lend_share: float = 0.5  # of this cloud's robots one other cloud holds at most
     federation: bool = True
     # TLS, logins and access control on the overlay (docs/security.md); None:
     # plain TCP, for one machine.

@@ -13,10 +13,10 @@ network: each IaaS exports its own cloud, Prometheus adds the federation up).
 from __future__ import annotations
 
 from collections import Counter as Tally
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Mapping
 
 from prometheus_client import CollectorRegistry, Counter, Histogram, disable_created_metrics
-from prometheus_client.core import GaugeMetricFamily, Metric
+from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metric
 from prometheus_client.exposition import choose_encoder
 
 from robocloud.domain.request import ACTIVE_STATES, FINAL_STATES, REQUEST_STATES
@@ -35,6 +35,9 @@ OVERLAY_OPERATIONS = ("gather", "dispatch", "cancel")
 
 RobotCounts = Callable[[], Iterable[tuple[str, str]]]  # (cloud, status) of each robot
 ActiveStates = Callable[[], Iterable[str]]  # the state of each active request
+# (what was asked, forged or untrusted) -> replies dropped (robocloud.federation.presence)
+DroppedReplies = Callable[[], Mapping[tuple[str, str], int]]
+RefusedReserves = Callable[[], Mapping[str, int]]  # origin -> reservations refused by a bound
 
 
 class IaasMetrics:
@@ -134,6 +137,12 @@ class IaasMetrics:
 
         self._gauges = _Gauges("", lambda: (), lambda: ())
         self.registry.register(self._gauges)
+        self._refusals = _Refusals(dict, dict)
+        self.registry.register(self._refusals)
+
+    def observe_refusals(self, replies: DroppedReplies, reserves: RefusedReserves) -> None:
+        """Where the security counters read at each scrape: the overlay's, the home's."""
+        self._refusals.replies, self._refusals.reserves = replies, reserves
 
     def observe_states(self, cloud: str, robots: RobotCounts, active: ActiveStates) -> None:
         """Where the gauges read at each scrape: the robots (cloud, status), the active requests."""
@@ -191,3 +200,36 @@ class _Gauges:
             if state in ACTIVE_STATES:
                 requests.add_metric([state], states.get(state, 0))
         yield requests
+
+
+class _Refusals:
+    """Counters kept by the overlay and the home, read at scrape time."""
+
+    def __init__(self, replies: DroppedReplies, reserves: RefusedReserves) -> None:
+        self.replies = replies
+        self.reserves = reserves
+
+    def describe(self) -> list[Metric]:
+        return []
+
+    def collect(self) -> Iterator[Metric]:
+        dropped = CounterMetricFamily(
+            "robocloud_overlay_replies_dropped",
+            "Replies from other clouds dropped because they did not come from the Zenoh "
+            "session that declared the cloud's presence (forged), or named a cloud this one "
+            "does not trust or that two sessions claim (untrusted); by what was asked.",
+            labels=["asked", "why"],
+        )
+        for (asked, why), n in sorted(self.replies().items()):
+            dropped.add_metric([asked, why], n)
+        yield dropped
+        refused = CounterMetricFamily(
+            "robocloud_reservations_refused",
+            "Reservations of this cloud's robots refused by a lending bound (lease-max from "
+            "the first reservation, idle robots with battery only, the origin's share, the "
+            "rate), by the origin cloud.",
+            labels=["origin"],
+        )
+        for origin, n in sorted(self.reserves().items()):
+            refused.add_metric([origin], n)
+        yield refused

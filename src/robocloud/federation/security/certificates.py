@@ -235,9 +235,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         "make-certs",
         help="a CA (made once, then reused) and a certificate for each cloud",
         description="Write OUT/ca.pem, OUT/ca.key and OUT/NAME.pem, OUT/NAME.key for each NAME. "
-        "A cloud's certificate must have its cloud name (--cloud) as NAME.",
+        "The name says what the holder is to the routers' access control: a cloud's IaaS "
+        "is its cloud name (--cloud), a cloud's fleet (robots, simulators, gateways) is "
+        "CLOUD-robots; any other name may only listen and ask the clouds' questions.",
     )
-    certs.add_argument("names", nargs="+", metavar="NAME", help="cloud names, e.g. cloud-a")
+    certs.add_argument(
+        "names",
+        nargs="+",
+        metavar="NAME",
+        help="e.g. cloud-a (an IaaS), cloud-a-robots (its fleet)",
+    )
     certs.add_argument("--out", required=True, type=Path, metavar="DIR")
     certs.add_argument(
         "--host",

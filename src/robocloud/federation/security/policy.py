@@ -1,28 +1,36 @@
-"""Who may ask what of a cloud's router: Zenoh ``access_control`` from the overlay's keys.
+"""Who may say what on a cloud's router: Zenoh ``access_control`` by certificate name.
 
-A cloud's router denies by default and allows:
+Each session's certificate says what it is (its common name, made by
+``make-certs``): a cloud (its name), the fleet of a cloud (``<cloud>-robots``:
+its robots, simulators and gateways), or anything else the federation's CA
+signed. The router of cloud X denies by default; what comes in (ingress) is
+allowed by list:
 
-- everyone: every message but queries, both ways; queries going out; queries
-  coming in for the questions every cloud answers (``robocloud/*/info`` ...),
-  the scatter-gather of the federation;
-- each trusted cloud: queries coming in on the command keys that name it as
-  the sender, ``robocloud/<this cloud>/from/<trusted cloud>/<command>``, and
-  no other command key. So a command's key is proof of its sender, and the
-  home takes the origin from it: cloud C cannot send as cloud A, and nobody
-  else, a robot's certificate included, sends commands at all;
-- this cloud itself (its own certificate or user, e.g. its operators' tools):
-  every query.
+- **X itself** (its own certificate: its IaaS's tools): everything;
+- **X's fleet** (``X-robots``): states and batches on X's robot and fleet
+  keys (``robocloud/X/robots/*/state``, ``robocloud/X/fleets/*/states``); a
+  queryable and its replies on X's robots' command keys and the simulator's
+  control key; the simulator's liveliness token. Not another cloud's keys,
+  not a presence token, not a reply to a cloud's question: a robot's
+  certificate cannot fabricate a cloud or answer for one;
+- **each trusted cloud T**: queries on the command keys that name it as the
+  sender, ``robocloud/X/from/T/<command>``; and as a cloud: its presence
+  token (``robocloud/federation/clouds/T/*``), queryables and replies on its
+  own keys (``robocloud/T/**``), its robots' states on its own keys;
+- **everyone**: subscriptions, liveliness subscriptions and queries, and
+  queries for the questions every cloud answers (``robocloud/*/info`` ...).
 
-Allow rules and deny by default, never deny rules: Zenoh applies a rule to a
-message whose key the rule's key includes, so a deny rule on one command key
-would miss a query on ``robocloud/**``. Nobody else may query this cloud's
-robots' command keys: commands reach them through this cloud's IaaS, which
-checks who holds the robot.
+What goes out (egress) is not restricted: it is what X's own router sends.
+So cloud C cannot send as cloud A, answer for A, or declare A's presence;
+nobody queries X's robots directly; an untrusted member's presence and
+replies never reach X's IaaS. Allow rules and deny by default, never deny
+rules: Zenoh applies a rule to a message whose key the rule's key includes,
+so a deny rule on one command key would miss a query on ``robocloud/**``.
 
 Peers are known by their certificate's common name with mutual TLS. With
 logins only, a router knows the user of the peers that connected to it, not
-of those it connected to, so the command keys stay open to every peer let in
-(the origin in the key is then as good as the network): docs/security.md.
+of those it connected to, so everything but queries stays open to every peer
+let in, and the command keys to every login (docs/security.md).
 """
 
 from __future__ import annotations
@@ -32,7 +40,9 @@ from typing import Any
 
 from robocloud.errors import InvalidInput
 from robocloud.federation import keys
-from robocloud.fleet.keys import check_chunk
+from robocloud.federation.keys import CLOUDS_TOKEN
+from robocloud.fleet import keys as robot_keys
+from robocloud.fleet.keys import ROOT, check_chunk
 
 QUESTIONS = keys.QUESTIONS
 COMMANDS = keys.COMMANDS
@@ -67,54 +77,136 @@ def check_trusted(cloud: str, trusted: Sequence[str], by_certificate: bool) -> t
     return names
 
 
+def fleet_name(cloud: str) -> str:
+    """The common name of a cloud's fleet certificate (its robots, simulators, gateways)."""
+    return f"{cloud}-robots"
+
+
 def access_control(
     cloud: str, trusted: Sequence[str] = (), by_certificate: bool = True
 ) -> dict[str, Any]:
     """Zenoh ``access_control`` for the router of ``cloud`` (see the module's docstring)."""
     trusted = check_trusted(cloud, trusted, by_certificate)
-    by = "cert_common_names" if by_certificate else "usernames"
+    if not by_certificate:
+        return _by_login(cloud)
+    by = "cert_common_names"
+    everything = [*_NOT_QUERIES, "query"]
+    own = f"{ROOT}/{cloud}"
     rules: list[dict[str, Any]] = [
-        _rule("messages", ["ingress", "egress"], list(_NOT_QUERIES), ["**"]),
-        _rule("ask", ["egress"], ["query"], ["**"]),
+        _rule("out", ["egress"], everything, ["**"]),
+        _rule(
+            "listen",
+            ["ingress"],
+            ["declare_subscriber", "declare_liveliness_subscriber", "liveliness_query"],
+            ["**"],
+        ),
         _rule("answer", ["ingress"], ["query"], [keys.question("*", q) for q in QUESTIONS]),
-        _rule("everything", ["ingress"], ["query"], ["**"]),
+        _rule("everything", ["ingress"], everything, ["**"]),
+        _rule(
+            "fleet-states",
+            ["ingress"],
+            ["put"],
+            [robot_keys.all_states(cloud), robot_keys.all_batches(cloud)],
+        ),
+        _rule(
+            "fleet-commands",
+            ["ingress"],
+            ["declare_queryable", "reply"],
+            [robot_keys.all_cmds(cloud), robot_keys.sim_control(cloud)],
+        ),
+        _rule("fleet-presence", ["ingress"], ["liveliness_token"], [f"{own}/sim/*"]),
     ]
-    subjects: list[dict[str, Any]] = [{"id": "anyone"}, {"id": "itself", by: [cloud]}]
+    subjects: list[dict[str, Any]] = [
+        {"id": "anyone"},
+        {"id": "itself", by: [cloud]},
+        {"id": "fleet", by: [fleet_name(cloud)]},
+    ]
     policies: list[dict[str, Any]] = [
-        {"id": "anyone", "subjects": ["anyone"], "rules": ["messages", "ask", "answer"]},
+        {"id": "anyone", "subjects": ["anyone"], "rules": ["out", "listen", "answer"]},
         {"id": "itself", "subjects": ["itself"], "rules": ["everything"]},
+        {
+            "id": "fleet",
+            "subjects": ["fleet"],
+            "rules": ["fleet-states", "fleet-commands", "fleet-presence"],
+        },
     ]
-    if by_certificate:
-        for name in trusted:
-            rules.append(
-                _rule(
-                    f"commands-from-{name}",
-                    ["ingress"],
-                    ["query"],
-                    [keys.command(cloud, name, c) for c in COMMANDS],
-                )
-            )
-            subjects.append({"id": f"cloud-{name}", by: [name]})
-            policies.append(
-                {
-                    "id": f"trusted-{name}",
-                    "subjects": [f"cloud-{name}"],
-                    "rules": [f"commands-from-{name}"],
-                }
-            )
-    else:
-        rules.append(
+    for name in trusted:
+        if name == cloud:
+            continue  # itself: everything already
+        rules += [
             _rule(
-                "commands", ["ingress"], ["query"], [keys.command(cloud, "*", c) for c in COMMANDS]
-            )
+                f"commands-from-{name}",
+                ["ingress"],
+                ["query"],
+                [keys.command(cloud, name, c) for c in COMMANDS],
+            ),
+            _rule(
+                f"presence-of-{name}",
+                ["ingress"],
+                ["liveliness_token"],
+                [f"{CLOUDS_TOKEN}/{name}/*"],
+            ),
+            _rule(
+                f"answers-of-{name}",
+                ["ingress"],
+                ["declare_queryable", "reply"],
+                [f"{ROOT}/{name}/**"],
+            ),
+            _rule(
+                f"states-of-{name}",
+                ["ingress"],
+                ["put"],
+                [robot_keys.all_states(name), robot_keys.all_batches(name)],
+            ),
+        ]
+        subjects.append({"id": f"cloud-{name}", by: [name]})
+        policies.append(
+            {
+                "id": f"trusted-{name}",
+                "subjects": [f"cloud-{name}"],
+                "rules": [
+                    f"commands-from-{name}",
+                    f"presence-of-{name}",
+                    f"answers-of-{name}",
+                    f"states-of-{name}",
+                ],
+            }
         )
-        policies[0]["rules"].append("commands")
     return {
         "enabled": True,
         "default_permission": "deny",
         "rules": rules,
         "subjects": subjects,
         "policies": policies,
+    }
+
+
+def _by_login(cloud: str) -> dict[str, Any]:
+    """With logins only: every message but queries open; commands to every login."""
+    return {
+        "enabled": True,
+        "default_permission": "deny",
+        "rules": [
+            _rule("messages", ["ingress", "egress"], list(_NOT_QUERIES), ["**"]),
+            _rule("ask", ["egress"], ["query"], ["**"]),
+            _rule("answer", ["ingress"], ["query"], [keys.question("*", q) for q in QUESTIONS]),
+            _rule("everything", ["ingress"], ["query"], ["**"]),
+            _rule(
+                "commands",
+                ["ingress"],
+                ["query"],
+                [keys.command(cloud, "*", c) for c in COMMANDS],
+            ),
+        ],
+        "subjects": [{"id": "anyone"}, {"id": "itself", "usernames": [cloud]}],
+        "policies": [
+            {
+                "id": "anyone",
+                "subjects": ["anyone"],
+                "rules": ["messages", "ask", "answer", "commands"],
+            },
+            {"id": "itself", "subjects": ["itself"], "rules": ["everything"]},
+        ],
     }
 
 

@@ -99,9 +99,12 @@ class Cloud:
             cwd=self.workdir,
             env=env,
         )
+        # A bound, not a timing claim: on two cores shared with other work an
+        # IaaS took up to 23 s to answer its first /healthz (it imports and
+        # forks its selection workers first).
         wait_until(
             lambda: httpx.get(f"{self.url}/healthz", timeout=1).status_code == 200,
-            20,
+            60,
             f"{self.name}'s IaaS to answer",
         )
 

@@ -134,7 +134,7 @@ class System:
                 "--time-scale", str(self.speedup), "--log-level", "warning",
             ], env={"ROBOCLOUD_API_KEYS": f"wildfire={API_KEY}"})
         for cloud in self.members:
-            self._wait(f"{cloud.name}'s IaaS to answer /healthz", 30,
+            self._wait(f"{cloud.name}'s IaaS to answer /healthz", 60,
                        lambda url=cloud.url: httpx.get(f"{url}/healthz", timeout=1).status_code
                        == 200)
             self._start(f"{cloud.name}-sim", [

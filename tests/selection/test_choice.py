@@ -129,12 +129,23 @@ def test_each_priority_picks_its_coalition(
     }
 
 
-def test_weights_are_modelmd() -> None:
-    assert CHOICE_WEIGHTS == {
-        "balanced": (1 / 3, 1 / 3, 1 / 3),
-        "time": (0.6, 0.2, 0.2),
-        "cost": (0.2, 0.6, 0.2),
-    }
+def test_the_weights_are_those_docs_model_md_states() -> None:
+    """The code and the contract say the same: the weights table of docs/model.md's choice."""
+    from fractions import Fraction
+    from pathlib import Path
+
+    text = (Path(__file__).parents[2] / "docs" / "model.md").read_text(encoding="utf-8")
+    choice = text[text.index("## The choice"):]
+    documented = {}
+    for line in choice.splitlines():
+        cells = [c.strip().strip("`") for c in line.strip().strip("|").split("|")]
+        if len(cells) == 4 and cells[0] in CHOICE_WEIGHTS:
+            documented[cells[0]] = tuple(float(Fraction(c)) for c in cells[1:])
+        if len(documented) == len(CHOICE_WEIGHTS):
+            break
+    assert set(documented) == set(CHOICE_WEIGHTS)
+    for priority, weights in CHOICE_WEIGHTS.items():
+        assert documented[priority] == pytest.approx(weights), priority
 
 
 def test_ties_fall_to_cost_then_time_then_size_then_ids() -> None:

@@ -24,6 +24,11 @@ what the payload says. The home enforces the leases:
   home logs it at both moments.
 
 Commands that touch another origin's loan are refused and logged as warnings.
+
+Why one long file: every answer of a home to another cloud (questions,
+reservations, confirms, releases, dispatches, cancels) checks the same
+loans in memory under one lock; the reconciliation is in ``reconcile.py``
+and the lease bounds in ``lending.py``.
 """
 
 from __future__ import annotations

@@ -19,6 +19,10 @@ others' replies are dropped, logged and counted.
 
 Zenoh queries are answered on a small thread pool, never on Zenoh's own
 threads, because answering may itself send queries (a dispatch asks the robot).
+
+Why one long file: the Zenoh side of every question and command between
+clouds, with the checks of who answered (``presence.py`` decides whom to
+believe).
 """
 
 from __future__ import annotations

@@ -12,6 +12,10 @@ Without an overlay (``overlay=None``) the view is this cloud alone.
 The view remembers the homes it borrowed robots from (``lenders``): once
 this cloud is back after being away, it asks them which of its loans they
 ended meanwhile (``robocloud.federation.home.Home.reconcile``).
+
+Why one long file: the one place a request reaches robots, its own cloud's
+and the others' alike (gathering, reservations, commands, what it keeps of
+the other clouds' answers).
 """
 
 from __future__ import annotations

@@ -12,6 +12,10 @@ an error it cannot carry on from fails the request with a reason.
 
 Writes to the store are retried while the store is unavailable (with a
 growing pause, up to 5 s): a state change is never skipped, only delayed.
+
+Why one long file: each effect of ``decide`` is carried out here, next to
+the operation it starts; the supervisor (``service.py``) and the rules
+(``lifecycle.py``) are elsewhere.
 """
 
 from __future__ import annotations

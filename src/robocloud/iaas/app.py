@@ -1,8 +1,13 @@
 """The IaaS's HTTP API: thin routes over ``RequestService``, errors mapped in one place.
 
-``create_app`` builds everything from ``Settings``; long-lived resources (the
-store, the Zenoh router session, the robot link, the service) are opened and
-closed in the app's lifespan. Tests may hand in a store and a link of their own.
+``create_app`` enters the composition root, ``build_cloud`` (``cloud.py``), in
+the app's lifespan: the store, the Zenoh router session, the robot link, the
+service and the rest are opened there and closed in reverse order. Tests may
+hand in a store, a link and a selector of their own.
+
+Why one long file: the routes, each with its OpenAPI declaration of the
+answers it really gives, and the ``Gate`` they all pass; the parts behind
+them are built in ``cloud.py``.
 """
 
 from __future__ import annotations

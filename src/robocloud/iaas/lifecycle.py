@@ -46,6 +46,10 @@ The rules that keep robots honest:
   this IaaS was down is done, not failed.
 - A final state never changes; the results of an attempt that arrive after it
   (a late reservation, late acknowledgements) only release and stop robots.
+
+Why one long file: every rule of a request's life is in ``decide`` and its
+handlers, pure and tested as one table; cut in two, a rule would be read in
+one file and its exception in the other.
 """
 
 from __future__ import annotations

@@ -15,7 +15,7 @@ from typing import Any
 
 import pytest
 import zenoh
-from fleet_testing import free_endpoint, wait_until
+from fleet_testing import free_endpoint, until_subscribed, wait_until
 
 from robocloud.errors import InvalidInput
 from robocloud.fleet import Ack, Assign, ZenohRobotLink, keys, open_client, open_router
@@ -95,8 +95,9 @@ def test_the_iaas_sees_a_gateways_robots_and_a_lone_robot_and_commands_reach_eac
     lone = LoneRobot(client, "g-lone")
     try:
         assert wait_until(lambda: len(link.states()) >= FLEET, timeout=10)
-        lone.report()
-        assert wait_until(lambda: "g-lone" in link.states())
+        # A robot reports at least once a second (docs/protocol.md): so does this one
+        # until the link has it.
+        assert wait_until(lambda: lone.report() or "g-lone" in link.states(), 10, every=0.2)
         assert set(link.states()) == {*simulator.robot_ids, "g-lone"}
         assert link.count() == FLEET + 1
         assert [r.id for r in link.robots()] == sorted(link.states())
@@ -135,7 +136,7 @@ def _task_of(state: State | None) -> str | None:
 def test_a_bad_state_in_a_batch_gets_its_robot_an_error_and_keeps_the_others(
     cloud: tuple[zenoh.Session, zenoh.Session, ZenohRobotLink, FleetSimulator],
 ) -> None:
-    _, client, link, _ = cloud
+    router, client, link, _ = cloud
     answers: dict[str, dict[str, Any]] = {}
     lock = threading.Lock()
 
@@ -144,6 +145,7 @@ def test_a_bad_state_in_a_batch_gets_its_robot_an_error_and_keeps_the_others(
             answers[str(sample.key_expr)] = json.loads(sample.payload.to_bytes())
 
     listening = client.declare_subscriber(f"robocloud/{CLOUD}/robots/*/error", heard)
+    until_subscribed(router, f"robocloud/{CLOUD}/robots/m-2/error")
     try:
         other_cloud = state("m-3", cloud="cloud-x")
         batch = [state("m-1"), state("m-2", battery=150.0), state("m-4"), other_cloud]

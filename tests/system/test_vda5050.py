@@ -305,11 +305,23 @@ def test_a_frozen_agv_without_last_will_is_offline_within_three_state_intervals(
     process = fleet.vehicles["frozen"]
     with fleet.cloud.client() as client:
 
-        def status() -> str | None:
-            listed = {r["id"]: r for r in client.get("/v1/robots").json()}
-            return listed[robot]["status"] if robot in listed else None
+        def listed() -> dict[str, Any] | None:
+            robots = {r["id"]: r for r in client.get("/v1/robots").json()}
+            return robots.get(robot)
 
-        wait_until(lambda: status() == "idle", 20, "the AGV to join")
+        def status() -> str | None:
+            found = listed()
+            return found["status"] if found is not None else None
+
+        # Idle with its capabilities: the gateway has its factsheet, and so its
+        # state interval (1 s); before it, the default of 10 s would hold.
+        wait_until(
+            lambda: (found := listed()) is not None
+            and found["status"] == "idle"
+            and found["capabilities"],
+            20,
+            "the AGV to join with its factsheet",
+        )
         process.send_signal(signal.SIGSTOP)
         try:
             stopped = time.monotonic()

@@ -263,7 +263,8 @@ def test_a_forged_state_cannot_hide_a_robot(
     )
     key = keys.state_key("cloud-a", "a-0100")
     with ZenohRobotLink(router, "cloud-a", offline_after=5.0, clock=clock) as link:
-        time.sleep(0.1)  # the subscription reaches the client
+        until_subscribed(client, key)
+        until_subscribed(router, keys.error_key("cloud-a", "a-0100"))
         client.put(key, state("a-0100", seq=1))
         assert wait_until(lambda: "a-0100" in link.states())
         # Far in the future: refused, with a sentence on the robot's error key.

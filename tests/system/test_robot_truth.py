@@ -16,11 +16,11 @@ from typing import Any
 
 import pytest
 from processes import Cloud, follow, wait_until
+from readme_fleet import details, join
 from readme_robot import ReadmeRobot
 
 pytestmark = pytest.mark.slow
 
-GRABBER = {"grabber": {"kind": "actuating", "time": 2.0, "cost": 1.0}}
 TASK: dict[str, Any] = {
     "location": [20.0, 0.0],
     "actuating": {"grabber": 1},
@@ -61,25 +61,6 @@ def robots(cloud: Cloud) -> Iterator[list[ReadmeRobot]]:
     yield made
     for robot in made:
         robot.close()
-
-
-def join(
-    cloud: Cloud, robots: list[ReadmeRobot], robot_id: str, x: float, **kw: Any
-) -> ReadmeRobot:
-    capabilities = kw.pop("capabilities", GRABBER)
-    robot = ReadmeRobot("cloud-a", robot_id, cloud.zenoh, (x, 0.0), capabilities, **kw)
-    robots.append(robot)
-    with cloud.client() as client:
-        wait_until(
-            lambda: robot_id in {r["id"] for r in client.get("/v1/robots").json()},
-            10,
-            f"{robot_id} to be heard",
-        )
-    return robot
-
-
-def details(request: dict[str, Any]) -> list[str]:
-    return [h["detail"] or "" for h in request["history"]]
 
 
 def at(request: dict[str, Any], state: str) -> float:

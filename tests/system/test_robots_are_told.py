@@ -14,11 +14,11 @@ from typing import Any
 
 import pytest
 from processes import Cloud, follow, wait_until
+from readme_fleet import details, join
 from readme_robot import ReadmeRobot
 
 pytestmark = pytest.mark.slow
 
-GRABBER = {"grabber": {"kind": "actuating", "time": 2.0, "cost": 1.0}}
 TASK: dict[str, Any] = {
     "location": [20.0, 0.0],
     "actuating": {"grabber": 1},
@@ -51,24 +51,6 @@ def robots(cloud: Cloud) -> Iterator[list[ReadmeRobot]]:
     yield made
     for robot in made:
         robot.close()
-
-
-def join(
-    cloud: Cloud, robots: list[ReadmeRobot], robot_id: str, x: float, **kw: Any
-) -> ReadmeRobot:
-    robot = ReadmeRobot("cloud-a", robot_id, cloud.zenoh, (x, 0.0), GRABBER, **kw)
-    robots.append(robot)
-    with cloud.client() as client:
-        wait_until(
-            lambda: robot_id in {r["id"] for r in client.get("/v1/robots").json()},
-            10,
-            f"{robot_id} to be heard",
-        )
-    return robot
-
-
-def details(request: dict[str, Any]) -> list[str]:
-    return [h["detail"] or "" for h in request["history"]]
 
 
 def test_a_late_acknowledgement_is_canceled_and_one_robot_does_the_job(

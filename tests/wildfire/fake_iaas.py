@@ -3,17 +3,23 @@
 Each fake is reached by its host (``http://cloud-a.test``); a test can make
 one refuse connections (``down``), hang until the client's timeout
 (``hang``), or answer anything (``answer``). Requests keep their
-Idempotency-Key, as the real store does.
+Idempotency-Key, as the real store does. Missions (``/v1/missions``) are
+planned by ``fake_missions.plan`` over the fake's robots; a test moves them on
+(``fake_missions.advance``, ``replan``) and calls ``changed()``, which wakes
+the event streams of ``served_iaas.py``.
 """
 
 from __future__ import annotations
 
 import json
+import threading
+import time
 from collections.abc import Callable
 from datetime import UTC, datetime, timedelta
 from typing import Any
 
 import httpx
+from fake_missions import FINAL, plan
 
 KEY = "s3cret-key"
 START = datetime(2026, 1, 1, tzinfo=UTC)
@@ -42,6 +48,16 @@ class FakeIaas:
         self.robots_page: int | None = None  # GET /v1/robots in pages of this many (Link)
         self.clock = START
         self.spec: dict[str, Any] | None = None  # GET /openapi.json (404 while None)
+        self.missions: dict[str, dict[str, Any]] = {}
+        self.mission_keys: dict[str, tuple[str, bytes]] = {}
+        self.lock = threading.Condition()  # held by each call; notified by ``changed``
+        self.version = 0  # of the missions, + 1 at each change
+
+    def changed(self) -> None:
+        """A test changed a mission: the event streams send it."""
+        with self.lock:
+            self.version += 1
+            self.lock.notify_all()
 
     @property
     def url(self) -> str:
@@ -90,6 +106,9 @@ class FakeIaas:
             return self.list(request)
         if path == "/v1/requests" and method == "POST":
             return self.create(request)
+        if path.startswith("/v1/missions"):
+            with self.lock:
+                return self.mission_call(request)
         parts = path.split("/")
         if len(parts) >= 4 and parts[3] in self.requests:
             record = self.requests[parts[3]]
@@ -137,6 +156,65 @@ class FakeIaas:
         if key:
             self.keys[key] = record["id"]
         return httpx.Response(202, json=record)
+
+
+    def mission_call(self, request: httpx.Request) -> httpx.Response:
+        parts = request.url.path.split("/")[3:]
+        if not parts and request.method == "POST":
+            return self.create_mission(request)
+        if not parts:
+            items = sorted(self.missions.values(), key=lambda m: m["created_at"], reverse=True)
+            state = request.url.params.get("state")
+            return httpx.Response(200, json={
+                "missions": [m for m in items if not state or m["state"] == state],
+                "next": None})
+        mission = self.missions.get(parts[0])
+        if mission is None:
+            return httpx.Response(404, json={"detail": f"there is no mission {parts[0]!r}."})
+        if request.method == "DELETE" and mission["state"] not in FINAL:
+            mission["state"] = "canceled"
+            for task in (mission["plan"] or {}).get("tasks", []):
+                if task["state"] != "done":
+                    task["state"] = "canceled"
+            for route in (mission["plan"] or {}).get("robots", []):
+                route["state"] = "released"
+            mission["history"].append({"at": time.time(), "state": "canceled",
+                                       "note": "canceled by the user"})
+            self.version += 1
+            self.lock.notify_all()
+        return httpx.Response(200, json=mission)
+
+    def create_mission(self, request: httpx.Request) -> httpx.Response:
+        key = request.headers.get("idempotency-key")
+        if key and key in self.mission_keys:
+            known, body = self.mission_keys[key]
+            if body != request.content:
+                return httpx.Response(422, json={"detail": "the Idempotency-Key header was "
+                                                           "given before with another mission."})
+            return httpx.Response(202, json=self.missions[known])
+        body = json.loads(request.content)
+        if not isinstance(body.get("tasks"), list) or not body["tasks"]:
+            return httpx.Response(422, json={"detail": "tasks: a mission needs 1 to 100 tasks."})
+        now = time.time()
+        mission_id = f"mis-{self.cloud[-1]}{len(self.missions):04d}"
+        label = body.pop("label", None)
+        body.pop("time_limit", None)
+        mission: dict[str, Any] = {
+            "id": mission_id, "label": label, "state": "underway", "reason": None,
+            "created_at": now, "updated_at": now, "started_at": now, "mission": body,
+            "plan": None, "progress": 0.0,
+            "history": [{"at": now, "state": "planning", "note": "received"}]}
+        try:
+            mission["plan"] = plan(body, self.robots)
+            mission["history"].append({"at": now, "state": "underway", "note": "planned"})
+        except ValueError as error:
+            mission["state"], mission["reason"] = "rejected", f"{error}."
+            mission["history"].append({"at": now, "state": "rejected", "note": str(error)})
+        self.missions[mission_id] = mission
+        if key:
+            self.mission_keys[key] = (mission_id, request.content)
+        return httpx.Response(202, json=mission,
+                              headers={"Location": f"/v1/missions/{mission_id}"})
 
 
 class FakeFederation:

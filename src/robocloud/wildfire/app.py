@@ -22,6 +22,17 @@ through :class:`~robocloud.wildfire.iaas_pool.IaasPool`, and errors become
     POST /api/requests                  send a task (an Idempotency-Key makes retries safe)
     GET  /api/requests/{id}             a request's state, coalition, front, history
     POST /api/requests/{id}/cancel      cancel it
+    GET  /api/missions                  ?state=&limit=&before=, newest first, every IaaS
+    POST /api/missions                  send several fires as one mission (Idempotency-Key too)
+    GET  /api/missions/{id}             a mission: its state, its plan, its progress
+    DELETE /api/missions/{id}           cancel it
+    GET  /api/missions/{id}/events      server-sent events: the mission, then after each change
+
+A mission (docs/model.md, "A mission") is sent, kept and listed as a request
+is, under the same checks and the same sentences; its events are the IaaS's
+own stream, relayed event by event (``event: mission``) with a comment every
+``KEEPALIVE_S`` while it is quiet, and closed when the IaaS closes it (the
+mission is final) or the page goes.
 
 A send that may have reached an IaaS without an answer coming back is 504 (or
 502) with ``"delivery": "unknown"``: the page then says the request is not
@@ -55,10 +66,10 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from robocloud.domain.request import IDEMPOTENCY_KEY_PATTERN, IDEMPOTENCY_KEY_RULE
 from robocloud.wildfire.config import WildfireSettings
-from robocloud.wildfire.feed import LiveFeed, TooManyPages
-from robocloud.wildfire.iaas_client import IaasBusy, IaasError, IaasUnreachable
+from robocloud.wildfire.feed import LiveFeed, TooManyPages, event
+from robocloud.wildfire.iaas_client import IaasBusy, IaasError, IaasUnreachable, MissionEvents
 from robocloud.wildfire.iaas_pool import Endpoint, IaasPool
-from robocloud.wildfire.live import LiveModel, one_line, request_summary
+from robocloud.wildfire.live import LiveModel, dumps, one_line, request_summary
 from robocloud.wildfire.metrics import WildfireMetrics
 
 log = logging.getLogger(__name__)
@@ -67,6 +78,8 @@ STATIC = Path(__file__).parent / "static"
 MAX_BODY_BYTES = 64 * 1024
 IDEMPOTENCY_KEY = re.compile(IDEMPOTENCY_KEY_PATTERN)
 DEFAULT_PAGE = 25
+# A quiet mission stream says it is alive this often (proxies close silent ones).
+KEEPALIVE_S = 15.0
 
 # The page loads nothing from anywhere but this server.
 SECURITY_HEADERS = {
@@ -114,6 +127,7 @@ def create_wildfire_app(
         redoc_url=None,
     )
     app.state.settings = settings
+    app.state.mission_streams = set()
     metrics = app.state.metrics = WildfireMetrics()
     _install_error_handlers(app)
     # JSON and the page's files; the live stream compresses itself (feed.py).
@@ -217,9 +231,7 @@ def _api() -> APIRouter:
         pool: Pool, state: str | None = None, limit: str = str(DEFAULT_PAGE),
         before: str | None = None,
     ) -> dict[str, Any]:
-        if not limit.isdigit():
-            raise IaasError(422, "limit must be a whole number from 1 to 200.")
-        page = await pool.list_requests(state or None, int(limit), before or None,
+        page = await pool.list_requests(state or None, _limit(limit), before or None,
                                         pool.settings.timeout)
         return {
             "items": [request_summary(record, endpoint.cloud) for record, endpoint in
@@ -235,27 +247,9 @@ def _api() -> APIRouter:
         model: Model,
         idempotency_key: Annotated[str | None, Header()] = None,
     ) -> JSONResponse:
-        if idempotency_key is not None and not IDEMPOTENCY_KEY.fullmatch(idempotency_key):
-            raise IaasError(422, f"the Idempotency-Key header must be {IDEMPOTENCY_KEY_RULE}.")
-        sends = metrics_of(request).sends
-        try:
-            body = await _bounded_body(request)
-            _check_task(body, model)
-            record, endpoint = await pool.create_request(body, idempotency_key)
-        except IaasUnreachable as error:
-            sends.labels("unknown").inc()
-            log.warning("a request may not have reached the IaaS (the page sends it again): %s",
-                        one_line(error.detail))
-            raise
-        except IaasError as error:
-            sends.labels("refused" if error.status < 500 else "failed").inc()
-            log.log(logging.INFO if error.status < 500 else logging.WARNING,
-                    "a request was refused (%d): %s", error.status, one_line(error.detail))
-            raise
-        sends.labels("accepted").inc()
+        record, endpoint = await _send(request, idempotency_key, "request", _check_task,
+                                       pool.create_request)
         model.ingest_request(record, endpoint.cloud, time.time())
-        log.info("request %s sent to %s: %s.", one_line(str(record.get("id"))), endpoint.name(),
-                 one_line(str(record.get("state"))))
         return JSONResponse(_with_home(record, endpoint), status_code=202)
 
     @router.get("/requests/{request_id}")
@@ -272,7 +266,123 @@ def _api() -> APIRouter:
         model.ingest_request(record, endpoint.cloud, time.time())
         return _with_home(record, endpoint)
 
+    @router.get("/missions")
+    async def list_missions(
+        pool: Pool, state: str | None = None, limit: str = str(DEFAULT_PAGE),
+        before: str | None = None,
+    ) -> dict[str, Any]:
+        page = await pool.list_missions(state or None, _limit(limit), before or None,
+                                        pool.settings.timeout)
+        return {
+            "items": [_with_home(record, endpoint) for record, endpoint in page["items"]],
+            "next": page["next"],
+            "missing": page["missing"],
+        }
+
+    @router.post("/missions", status_code=202)
+    async def create_mission(
+        request: Request,
+        pool: Pool,
+        idempotency_key: Annotated[str | None, Header()] = None,
+    ) -> JSONResponse:
+        record, endpoint = await _send(request, idempotency_key, "mission", _check_mission,
+                                       pool.create_mission)
+        return JSONResponse(_with_home(record, endpoint), status_code=202)
+
+    @router.get("/missions/{mission_id}")
+    async def get_mission(mission_id: str, pool: Pool) -> dict[str, Any]:
+        record, endpoint = await pool.get_mission(mission_id)
+        return _with_home(record, endpoint)
+
+    @router.delete("/missions/{mission_id}")
+    async def cancel_mission(mission_id: str, pool: Pool) -> dict[str, Any]:
+        record, endpoint = await pool.cancel_mission(mission_id)
+        log.info("mission %s canceled by the operator at %s.", one_line(mission_id),
+                 endpoint.name())
+        return _with_home(record, endpoint)
+
+    @router.get("/missions/{mission_id}/events")
+    async def mission_events(mission_id: str, request: Request, pool: Pool
+                             ) -> StreamingResponse:
+        streams: set[object] = request.app.state.mission_streams
+        if len(streams) >= pool.settings.max_live_pages:
+            raise IaasError(503, "too many pages follow this server; close one and reload.")
+        events = await pool.mission_events(mission_id)
+        return StreamingResponse(_relay(events, streams), media_type="text/event-stream",
+                                 headers={"Cache-Control": "no-store", "X-Accel-Buffering": "no"})
+
     return router
+
+
+def _limit(text: str) -> int:
+    if not text.isdigit():
+        raise IaasError(422, "limit must be a whole number from 1 to 200.")
+    return int(text)
+
+
+async def _send(
+    request: Request, idempotency_key: str | None, what: str,
+    check: Callable[[bytes, LiveModel], None],
+    create: Callable[[bytes, str | None], Any],
+) -> tuple[dict[str, Any], Endpoint]:
+    """A request or a mission sent on the page's behalf: checked, counted, logged, pinned."""
+    if idempotency_key is not None and not IDEMPOTENCY_KEY.fullmatch(idempotency_key):
+        raise IaasError(422, f"the Idempotency-Key header must be {IDEMPOTENCY_KEY_RULE}.")
+    metrics = metrics_of(request)
+    sends = metrics.sends if what == "request" else metrics.mission_sends
+    try:
+        body = await _bounded_body(request, what)
+        check(body, model_of(request))
+        record, endpoint = await create(body, idempotency_key)
+    except IaasUnreachable as error:
+        sends.labels("unknown").inc()
+        log.warning("a %s may not have reached the IaaS (the page sends it again): %s",
+                    what, one_line(error.detail))
+        raise
+    except IaasError as error:
+        sends.labels("refused" if error.status < 500 else "failed").inc()
+        log.log(logging.INFO if error.status < 500 else logging.WARNING,
+                "a %s was refused (%d): %s", what, error.status, one_line(error.detail))
+        raise
+    sends.labels("accepted").inc()
+    log.info("%s %s sent to %s: %s.", what, one_line(str(record.get("id"))), endpoint.name(),
+             one_line(str(record.get("state"))))
+    return record, endpoint
+
+
+async def _relay(events: MissionEvents, streams: set[object]) -> AsyncIterator[bytes]:
+    """The IaaS's mission events for one page, with a comment while nothing changes."""
+    queue: asyncio.Queue[bytes | None] = asyncio.Queue(8)
+
+    async def read() -> None:
+        try:
+            async for mission in events.missions():
+                await queue.put(event("mission", dumps(mission)))
+        except (httpx.HTTPError, IaasError) as error:
+            log.info("a mission's event stream broke off: %s", one_line(str(error)))
+        finally:
+            await queue.put(None)
+
+    token = object()
+    streams.add(token)
+    reader = asyncio.ensure_future(read())
+    try:
+        yield b"retry: 3000\n\n"
+        while True:
+            try:
+                data = await asyncio.wait_for(queue.get(), KEEPALIVE_S)
+            except TimeoutError:
+                yield b": keep-alive\n\n"
+                continue
+            if data is None:
+                return
+            yield data
+    finally:
+        streams.discard(token)
+        reader.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await reader
+        await events.aclose()
 
 
 def _check_task(body: bytes, model: LiveModel) -> None:
@@ -281,19 +391,42 @@ def _check_task(body: bytes, model: LiveModel) -> None:
     Anything else (a missing field, a wrong type) is left to the IaaS, whose
     sentence comes back as it is.
     """
-    try:
-        task = json.loads(body)
-    except ValueError:
-        raise IaasError(422, "the body is not JSON: send a task as a JSON object.") from None
-    if not isinstance(task, Mapping):
+    task = _json(body, "a task")
+    if isinstance(task, Mapping):
+        _check_place(task.get("location"), "location", "fire", model)
+        _check_needs(task, "", model)
+
+
+def _check_mission(body: bytes, model: LiveModel) -> None:
+    """A mission's fires and end place, each as a task's (``_check_task``)."""
+    mission = _json(body, "a mission")
+    if not isinstance(mission, Mapping):
         return
-    location = task.get("location")
+    tasks = mission.get("tasks")
+    for i, task in enumerate(tasks if isinstance(tasks, list) else []):
+        if isinstance(task, Mapping):
+            _check_place(task.get("location"), f"tasks[{i}].location", "fire", model)
+            _check_needs(task, f"tasks[{i}].", model)
+    _check_place(mission.get("end"), "end", "end place", model)
+
+
+def _json(body: bytes, what: str) -> Any:
+    try:
+        return json.loads(body)
+    except ValueError:
+        raise IaasError(422, f"the body is not JSON: send {what} as a JSON object.") from None
+
+
+def _check_place(location: Any, field: str, what: str, model: LiveModel) -> None:
     if (isinstance(location, list) and len(location) == 2
             and all(isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
                     for v in location)):
-        refusal = model.settings.forest.refusal(float(location[0]), float(location[1]))
+        refusal = model.settings.forest.refusal(float(location[0]), float(location[1]), what)
         if refusal:
-            raise IaasError(422, f"location: {refusal}")
+            raise IaasError(422, f"{field}: {refusal}")
+
+
+def _check_needs(task: Mapping[str, Any], prefix: str, model: LiveModel) -> None:
     known = model.known_capabilities()
     if not known:
         return  # the fleet is not heard yet: the IaaS decides
@@ -304,19 +437,20 @@ def _check_task(body: bytes, model: LiveModel) -> None:
         for name in wanted:
             if name not in known:
                 offered = ", ".join(sorted(known)[:20])
-                raise IaasError(422, f"{kind}.{str(name)[:60]}: no robot of the federation "
-                                     f"has the capability {str(name)[:60]!r}; the fleet "
-                                     f"has {offered}.")
+                raise IaasError(422, f"{prefix}{kind}.{str(name)[:60]}: no robot of the "
+                                     f"federation has the capability {str(name)[:60]!r}; the "
+                                     f"fleet has {offered}.")
 
 
-async def _bounded_body(request: Request) -> bytes:
+async def _bounded_body(request: Request, what: str) -> bytes:
     body = b""
     async for chunk in request.stream():
         body += chunk
         if len(body) > MAX_BODY_BYTES:
             raise IaasError(413, f"the body is over {MAX_BODY_BYTES} bytes, the most accepted.")
     if not body.strip():
-        raise IaasError(422, "the request body is missing: send a JSON task.")
+        raise IaasError(422, f"the request body is missing: send a JSON "
+                             f"{'task' if what == 'request' else what}.")
     return body
 
 

@@ -59,12 +59,12 @@ class Forest:
             f"y from {_metres(self.y0)} to {_metres(self.y1)} m"
         )
 
-    def refusal(self, x: float, y: float) -> str | None:
-        """The sentence refusing a fire at (x, y), or None when it is in the forest."""
+    def refusal(self, x: float, y: float, what: str = "fire") -> str | None:
+        """The sentence refusing a fire (or ``what``) at (x, y); None when in the forest."""
         if self.contains(x, y):
             return None
         return (
-            f"the fire at ({_metres(x)}, {_metres(y)}) is outside the forest, "
+            f"the {what} at ({_metres(x)}, {_metres(y)}) is outside the forest, "
             f"which spans {self.span()}."
         )
 

@@ -9,6 +9,10 @@ The errors it raises, each carrying what the page needs to show::
                             then the answer never came)
 
 ``robocloud.wildfire.app`` maps them to HTTP responses, in one place.
+
+Requests (``/v1/requests``) and missions (``/v1/missions``, several tasks
+planned as one, docs/model.md) are called alike; a mission's event stream
+(``GET /v1/missions/{id}/events``) is read as :class:`MissionEvents`.
 """
 
 from __future__ import annotations
@@ -16,15 +20,18 @@ from __future__ import annotations
 import json
 import re
 import time
+from collections.abc import AsyncIterator
 from typing import Any
 
 import httpx
 
 from robocloud.errors import Busy
 
-# Request ids travel inside a path: anything else could walk to another route.
+# Request and mission ids travel inside a path: anything else could walk to another route.
 REQUEST_ID = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]{0,127}")
 LIST_PARAMETERS = ("state", "limit", "before")
+# One event of a mission's stream is one mission: larger is not an IaaS's.
+MAX_EVENT_BYTES = 4 * 1024 * 1024
 # 100,000 robots are about 30 MB of JSON: an answer beyond this is not an IaaS's.
 MAX_ANSWER_BYTES = 64 * 1024 * 1024
 # GET /v1/robots comes in pages (the Link header's rel="next"): the largest an
@@ -124,11 +131,7 @@ class IaasClient:
         return page
 
     async def create_request(self, body: bytes, idempotency_key: str | None) -> dict[str, Any]:
-        headers = {"Content-Type": "application/json"}
-        if idempotency_key:
-            headers["Idempotency-Key"] = idempotency_key
-        answer = await self._call("POST", "/v1/requests", content=body, headers=headers)
-        return _object(answer, self.base_url)
+        return await self._create("/v1/requests", body, idempotency_key)
 
     async def get_request(self, request_id: str, timeout: float | None = None) -> dict[str, Any]:
         answer = await self._call("GET", f"/v1/requests/{checked_id(request_id)}", timeout=timeout)
@@ -136,6 +139,60 @@ class IaasClient:
 
     async def cancel_request(self, request_id: str) -> dict[str, Any]:
         answer = await self._call("POST", f"/v1/requests/{checked_id(request_id)}/cancel")
+        return _object(answer, self.base_url)
+
+    # --- missions: several tasks planned as one ----------------------------------
+    async def list_missions(
+        self, params: dict[str, str], timeout: float | None = None
+    ) -> dict[str, Any]:
+        """The IaaS's ``{"missions": [...], "next": ...}``, as ``{"items": ..., "next": ...}``."""
+        kept = {k: v for k, v in params.items() if k in LIST_PARAMETERS}
+        answer = await self._call("GET", "/v1/missions", params=kept, timeout=timeout)
+        page = _object(answer, self.base_url)
+        if not isinstance(page.get("missions"), list):
+            raise _not_json(self.base_url, "its mission list has no missions")
+        return {"items": page["missions"], "next": page.get("next")}
+
+    async def create_mission(self, body: bytes, idempotency_key: str | None) -> dict[str, Any]:
+        return await self._create("/v1/missions", body, idempotency_key)
+
+    async def get_mission(self, mission_id: str, timeout: float | None = None) -> dict[str, Any]:
+        path = f"/v1/missions/{checked_id(mission_id, 'mission')}"
+        return _object(await self._call("GET", path, timeout=timeout), self.base_url)
+
+    async def cancel_mission(self, mission_id: str) -> dict[str, Any]:
+        path = f"/v1/missions/{checked_id(mission_id, 'mission')}"
+        return _object(await self._call("DELETE", path), self.base_url)
+
+    async def mission_events(self, mission_id: str) -> MissionEvents:
+        """The mission's event stream, open: its status was checked (an error is raised here)."""
+        path = f"/v1/missions/{checked_id(mission_id, 'mission')}/events"
+        # The stream is quiet between changes: no read timeout, the connection's own.
+        request = self._http.build_request(
+            "GET", path, headers={"Accept": "text/event-stream"},
+            timeout=httpx.Timeout(self.timeout, read=None))
+        try:
+            answer = await self._http.send(request, stream=True)
+        except httpx.HTTPError as error:
+            self.failures += 1
+            raise IaasUnreachable(self.base_url, f"cannot be reached ({_cause(error)})",
+                                  maybe_delivered=False,
+                                  timed_out=isinstance(error, httpx.TimeoutException)) from None
+        if answer.status_code >= 400:
+            content = await _bounded(answer)
+            await answer.aclose()
+            if answer.status_code >= 500:
+                self.failures += 1
+            raise IaasError(answer.status_code,
+                            _sentence(answer.status_code, answer.reason_phrase, content or b""))
+        return MissionEvents(answer, mission_id)
+
+    async def _create(self, path: str, body: bytes, idempotency_key: str | None
+                      ) -> dict[str, Any]:
+        headers = {"Content-Type": "application/json"}
+        if idempotency_key:
+            headers["Idempotency-Key"] = idempotency_key
+        answer = await self._call("POST", path, content=body, headers=headers)
         return _object(answer, self.base_url)
 
     async def _call(
@@ -203,10 +260,47 @@ class IaasClient:
             raise _not_json(self.base_url, "its answer is not JSON") from None
 
 
-def checked_id(request_id: str) -> str:
-    if not REQUEST_ID.fullmatch(request_id):
-        raise IaasError(404, f"there is no request {request_id[:80]!r}.")
-    return request_id
+def checked_id(record_id: str, what: str = "request") -> str:
+    if not REQUEST_ID.fullmatch(record_id):
+        raise IaasError(404, f"there is no {what} {record_id[:80]!r}.")
+    return record_id
+
+
+class MissionEvents:
+    """An open ``GET /v1/missions/{id}/events``: each ``event: mission`` as the mission."""
+
+    def __init__(self, answer: httpx.Response, mission_id: str) -> None:
+        self.answer = answer
+        self.mission_id = mission_id
+
+    async def missions(self) -> AsyncIterator[dict[str, Any]]:
+        """The missions the stream sends, until it ends; what is not a mission is passed over."""
+        name, size = "message", 0
+        data: list[str] = []
+        async for line in self.answer.aiter_lines():
+            if line == "":
+                if name == "mission" and data:
+                    try:
+                        mission = json.loads("\n".join(data))
+                    except ValueError:
+                        mission = None
+                    if isinstance(mission, dict) and mission.get("id") == self.mission_id:
+                        yield mission
+                name, data, size = "message", [], 0
+                continue
+            field, _, value = line.partition(":")
+            value = value.removeprefix(" ")
+            if field == "event":
+                name = value
+            elif field == "data":
+                size += len(value)
+                if size > MAX_EVENT_BYTES:
+                    raise _not_json(str(self.answer.url), f"an event is over {MAX_EVENT_BYTES} "
+                                                          f"bytes")
+                data.append(value)
+
+    async def aclose(self) -> None:
+        await self.answer.aclose()
 
 
 def _not_json(url: str, what: str) -> IaasUnreachable:

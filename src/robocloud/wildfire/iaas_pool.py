@@ -16,6 +16,9 @@ one answers:
   remembers where, and asks each IaaS in turn for an id it has not seen.
 - **The list**: one newest-first list over every IaaS, paged with a cursor
   that holds each IaaS's own cursor.
+
+Missions (several tasks planned as one) follow the same rules as requests:
+the same pinned sends, the same home, the same merged list.
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ import asyncio
 import re
 import time
 from collections import OrderedDict
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Any
@@ -38,6 +42,7 @@ from robocloud.wildfire.iaas_client import (
     IaasClient,
     IaasError,
     IaasUnreachable,
+    MissionEvents,
 )
 
 MAX_REMEMBERED = 20_000
@@ -150,6 +155,14 @@ class IaasPool:
     # --- calls on the operator's behalf ----------------------------------------
     async def create_request(self, body: bytes, key: str | None) -> tuple[dict[str, Any], Endpoint]:
         """Send a task; a key that may already be at an IaaS only ever goes back there."""
+        return await self._create(lambda e: e.client.create_request(body, key), key)
+
+    async def create_mission(self, body: bytes, key: str | None) -> tuple[dict[str, Any], Endpoint]:
+        """Send a mission, as a task is sent."""
+        return await self._create(lambda e: e.client.create_mission(body, key), key)
+
+    async def _create(self, send: Callable[[Endpoint], Awaitable[dict[str, Any]]],
+                      key: str | None) -> tuple[dict[str, Any], Endpoint]:
         pin = self._pins.get(key) if key else None
         if pin is not None and pin.maybe_delivered:
             candidates = [self.endpoints[pin.endpoint]]
@@ -158,7 +171,7 @@ class IaasPool:
         last: IaasError | None = None
         for endpoint in candidates:
             try:
-                record = await endpoint.client.create_request(body, key)
+                record = await send(endpoint)
             except IaasUnreachable as error:
                 self.mark(endpoint, error)
                 if error.maybe_delivered:
@@ -202,7 +215,29 @@ class IaasPool:
     async def cancel_request(self, request_id: str) -> tuple[dict[str, Any], Endpoint]:
         return await self._at_home(request_id, lambda e: e.client.cancel_request(request_id))
 
-    async def _at_home(self, request_id: str, call: Any) -> tuple[dict[str, Any], Endpoint]:
+    async def get_mission(
+        self, mission_id: str, timeout: float | None = None
+    ) -> tuple[dict[str, Any], Endpoint]:
+        return await self._at_home(mission_id, lambda e: e.client.get_mission(mission_id, timeout),
+                                   "mission")
+
+    async def cancel_mission(self, mission_id: str) -> tuple[dict[str, Any], Endpoint]:
+        return await self._at_home(mission_id, lambda e: e.client.cancel_mission(mission_id),
+                                   "mission")
+
+    async def mission_events(self, mission_id: str) -> MissionEvents:
+        """The mission's event stream, from the IaaS that holds it (found first if need be)."""
+        home = self.home_of(mission_id)
+        if home is None:
+            _, home = await self.get_mission(mission_id, self.settings.poll_timeout)
+        try:
+            return await home.client.mission_events(mission_id)
+        except IaasError as error:
+            self.mark(home, error)
+            raise
+
+    async def _at_home(self, request_id: str, call: Any, what: str = "request"
+                       ) -> tuple[dict[str, Any], Endpoint]:
         home = self.home_of(request_id)
         if home is not None:
             try:
@@ -230,7 +265,7 @@ class IaasPool:
         if unreachable is not None:
             raise IaasError(
                 502,
-                f"no IaaS that answered knows the request {request_id!r}, and "
+                f"no IaaS that answered knows the {what} {request_id!r}, and "
                 f"{unreachable.detail.rstrip('.')}: it may be there.",
             )
         assert not_found is not None
@@ -249,6 +284,18 @@ class IaasPool:
             raise IaasError(
                 422, f"state must be one of {', '.join(REQUEST_STATES)}; {state!r} is not a state."
             )
+        return await self._list("requests", state, limit, cursor, timeout)
+
+    async def list_missions(
+        self, state: str | None, limit: int, cursor: str | None, timeout: float | None = None,
+    ) -> dict[str, Any]:
+        """As ``list_requests``; a mission's states are the IaaS's to check."""
+        return await self._list("missions", state, limit, cursor, timeout)
+
+    async def _list(
+        self, kind: str, state: str | None, limit: int, cursor: str | None,
+        timeout: float | None,
+    ) -> dict[str, Any]:
         if not 1 <= limit <= MAX_LIST_LIMIT:
             raise IaasError(422, f"limit must be a whole number from 1 to {MAX_LIST_LIMIT}.")
         positions = self._parse_cursor(cursor)
@@ -261,6 +308,8 @@ class IaasPool:
             before = positions.get(endpoint.index)
             if before:
                 params["before"] = before
+            if kind == "missions":
+                return await endpoint.client.list_missions(params, timeout)
             return await endpoint.client.list_requests(params, timeout)
 
         answers = await asyncio.gather(*(page_of(e) for e in wanted), return_exceptions=True)
@@ -271,7 +320,7 @@ class IaasPool:
             if isinstance(answer, IaasError):
                 self.mark(endpoint, answer)
                 if isinstance(answer, IaasUnreachable) or answer.status >= 500:
-                    missing.append(f"the requests held by {endpoint.name()} are not shown: "
+                    missing.append(f"the {kind} held by {endpoint.name()} are not shown: "
                                    f"{answer.detail}")
                     continue
                 raise answer
@@ -314,8 +363,15 @@ class IaasPool:
 
 
 def _when(item: dict[str, Any]) -> datetime:
+    created = item.get("created_at")
+    if isinstance(created, int | float) and not isinstance(created, bool):
+        # A mission's times are seconds since the epoch.
+        try:
+            return datetime.fromtimestamp(created, UTC)
+        except (OverflowError, OSError, ValueError):
+            return datetime.min.replace(tzinfo=UTC)
     try:
-        when = datetime.fromisoformat(str(item.get("created_at")))
+        when = datetime.fromisoformat(str(created))
     except ValueError:
         return datetime.min.replace(tzinfo=UTC)
     return when if when.tzinfo else when.replace(tzinfo=UTC)

@@ -42,8 +42,15 @@ class WildfireMetrics:
             ["outcome"],
             registry=r,
         )
+        self.mission_sends = Counter(
+            "wildfire_mission_sends",
+            "Missions sent by the page (POST /api/missions), by outcome, as for requests.",
+            ["outcome"],
+            registry=r,
+        )
         for outcome in SEND_OUTCOMES:
             self.sends.labels(outcome)
+            self.mission_sends.labels(outcome)
         self._reads = _Reads()
         r.register(self._reads)
 

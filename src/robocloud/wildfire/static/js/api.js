@@ -47,4 +47,10 @@ export const api = {
   request: (id) => call("GET", `/api/requests/${encodeURIComponent(id)}`),
   send: (task, key) => call("POST", "/api/requests", task, { "Idempotency-Key": key }),
   cancel: (id) => call("POST", `/api/requests/${encodeURIComponent(id)}/cancel`),
+  // Missions: several fires planned as one (mission.js, missionview.js).
+  missions: ({ limit = 20 } = {}) => call("GET", `/api/missions?${new URLSearchParams({ limit: String(limit) })}`),
+  mission: (id) => call("GET", `/api/missions/${encodeURIComponent(id)}`),
+  sendMission: (mission, key) => call("POST", "/api/missions", mission, { "Idempotency-Key": key }),
+  cancelMission: (id) => call("DELETE", `/api/missions/${encodeURIComponent(id)}`),
+  missionEvents: (id) => `/api/missions/${encodeURIComponent(id)}/events`,
 };

@@ -6,7 +6,10 @@ import { Banner } from "./banner.js";
 import { RequestForm } from "./form.js";
 import { Live } from "./live.js";
 import { ForestMap } from "./map.js";
-import { Sender } from "./sender.js";
+import { MissionBuilder } from "./mission.js";
+import { MissionView } from "./missionview.js";
+import { MissionOverlay } from "./routes.js";
+import { pendingLine, Sender } from "./sender.js";
 import { requestName, StatePanel } from "./state.js";
 import { REQUESTS_PER_PAGE, RequestsTable, RobotsTable } from "./tables.js";
 import {
@@ -41,14 +44,35 @@ const banner = new Banner(live);
 const map = new ForestMap($("map"), {
   onPlace: (point) => form.setLocation(point),
   onRobot: (id) => showRobotCard(id),
+  onEnd: (point) => missions.setEnd(point),
 });
 map.ageOf = (robot) => live.age(robot);
 const form = new RequestForm($("request-form"), {
   onSubmit: (task) => sender.submit(task),
   onCheck: () => sender.forget(),
   onLocation: (point) => map.setFire(point),
+  onMission: () => missions.submit(),
 });
 const sender = new Sender({ api, onChange: showSend });
+// Several fires as one mission: built in the form, followed under MISSION, drawn on the map.
+const overlay = new MissionOverlay(map);
+const missions = new MissionBuilder({
+  api, form,
+  onChange: (builder) => overlay.setDraft(builder.fires, builder.end()),
+  onSent: (mission) => missionView.follow(mission.id),
+});
+const missionView = new MissionView({
+  api, live, overlay,
+  onShow: () => { showTableTab("mission"); if (page.tab !== "send") showTab("mission"); },
+  onState: (mission) => announce(`Mission ${mission.id} is ${mission.state}.`),
+});
+for (const radio of document.querySelectorAll("input[name=send-mode]")) {
+  radio.addEventListener("change", () => {
+    if (!radio.checked) return;
+    form.setMode(radio.value);
+    if (radio.value !== "mission" && $("mode-end").checked) { $("mode-fire").checked = true; map.setMode("fire"); }
+  });
+}
 const statePanel = new StatePanel($("state-body"), { live });
 const robotsTable = new RobotsTable($("robots-table"), {
   live,
@@ -249,20 +273,13 @@ function showSend(submission) {
   const stop = $("stop-checking");
   stop.hidden = !["unconfirmed", "not-sent-yet"].includes(submission.state);
   const detail = sentence(humanize(submission.detail || ""));
+  const pending = pendingLine(submission, "request", detail);
+  if (pending) {
+    form.setBusy(true, pending.button);
+    form.setResult(pending.text, "pending");
+    return;
+  }
   switch (submission.state) {
-    case "sending":
-      form.setBusy(true, "Sending…");
-      form.setResult("Sending…", "pending");
-      break;
-    case "unconfirmed":
-      form.setBusy(true, "Checking…");
-      form.setResult(`Not confirmed yet: ${detail} The request may have reached the IaaS; checking again with the same key `
-        + `in ${submission.retryIn} s (try ${submission.attempts + 1}), so it cannot be sent twice.`, "pending");
-      break;
-    case "not-sent-yet":
-      form.setBusy(true, "Trying…");
-      form.setResult(`No IaaS has received it yet: ${detail} Trying again in ${submission.retryIn} s (try ${submission.attempts + 1}).`, "pending");
-      break;
     case "confirmed": {
       form.setBusy(false);
       const request = submission.request;
@@ -296,7 +313,7 @@ function showSend(submission) {
       break;
   }
 }
-$("stop-checking").addEventListener("click", () => sender.stop());
+$("stop-checking").addEventListener("click", () => { sender.stop(); missions.stop(); });
 
 // The send's line follows its request, in the IaaS's words: green only once
 // the IaaS says robots are on their way, so a rejection is never green.
@@ -595,9 +612,11 @@ function statusMeaning(robot, assignment, age) {
 }
 
 // --- tabs: the tables' (Requests, Robots) and, on a phone, the page's ----------------------
+const TABLE_TABS = ["requests", "robots", "mission"];
 function showTableTab(name) {
   page.tableTab = name;
-  for (const tab of ["requests", "robots"]) {
+  document.body.dataset.table = name;
+  for (const tab of TABLE_TABS) {
     const on = tab === name;
     $(`tab-${tab}`).setAttribute("aria-selected", String(on));
     $(`tab-${tab}`).tabIndex = on ? 0 : -1;
@@ -606,10 +625,13 @@ function showTableTab(name) {
   robotsTable.visible = name === "robots";
   robotsTable.render();
 }
-$("tab-requests").addEventListener("click", () => showTableTab("requests"));
-$("tab-robots").addEventListener("click", () => showTableTab("robots"));
-$("tab-requests").addEventListener("keydown", (e) => { if (e.key === "ArrowRight") { showTableTab("robots"); $("tab-robots").focus(); } });
-$("tab-robots").addEventListener("keydown", (e) => { if (e.key === "ArrowLeft") { showTableTab("requests"); $("tab-requests").focus(); } });
+TABLE_TABS.forEach((tab, i) => {
+  $(`tab-${tab}`).addEventListener("click", () => showTableTab(tab));
+  $(`tab-${tab}`).addEventListener("keydown", (e) => {
+    const next = TABLE_TABS[i + (e.key === "ArrowRight" ? 1 : e.key === "ArrowLeft" ? -1 : 0)];
+    if (next && next !== tab) { showTableTab(next); $(`tab-${next}`).focus(); }
+  });
+});
 
 function showTab(name) {
   page.tab = name;
@@ -620,7 +642,11 @@ function showTab(name) {
   }
 }
 for (const button of $("tabs").querySelectorAll("button")) {
-  button.addEventListener("click", () => showTab(button.dataset.tab));
+  button.addEventListener("click", () => {
+    showTab(button.dataset.tab);
+    if (button.dataset.tab === "mission") showTableTab("mission");
+    else if (button.dataset.tab === "requests" && page.tableTab === "mission") showTableTab("requests");
+  });
 }
 
 // --- every second: clocks and ages ----------------------------------------------------------
@@ -635,3 +661,4 @@ setInterval(() => {
 
 live.start();
 loadRequests();
+missionView.loadList();

@@ -5,7 +5,7 @@
 
 import { el, fmtDuration, fmtNumber, humanize, sentence } from "./util.js";
 
-const FIELDS = ["location", "capabilities", "max_robots", "max_cost", "max_time", "min_battery", "label", "form"];
+const FIELDS = ["location", "capabilities", "max_robots", "max_cost", "max_time", "min_battery", "label", "mission", "form"];
 
 // What each priority does to the final choice among the Pareto-optimal
 // coalitions (docs/model.md), one line each.
@@ -34,6 +34,9 @@ export function forestRefusal(forest, x, y) {
     + `${metres(forest.x0)} to ${metres(forest.x1)} m and y from ${metres(forest.y0)} to ${metres(forest.y1)} m.`;
 }
 
+const upTo = (max) => (Number.isFinite(max) ? ` to ${fmtNumber(max)}` : " or more");
+const within = (value, { min, max }) => value >= min && !(Number.isFinite(max) && value > max);
+
 function readNumber(input) {
   const text = input.value.trim();
   if (text === "") return { empty: true, value: NaN };
@@ -43,9 +46,11 @@ function readNumber(input) {
 }
 
 export class RequestForm {
-  constructor(form, { onSubmit, onLocation, onCheck = () => {} }) {
+  constructor(form, { onSubmit, onLocation, onCheck = () => {}, onMission = () => {} }) {
     this.form = form;
     this.onSubmit = onSubmit;
+    this.onMission = onMission;   // in "mission" mode the button sends the mission (mission.js)
+    this.mode = "request";
     this.onCheck = onCheck;
     this.limits = NO_LIMITS;
     this.onLocation = onLocation;
@@ -178,7 +183,9 @@ export class RequestForm {
   }
 
   // --- checking ----------------------------------------------------------
-  read() {
+  // One fire: its place and the robots it needs with each capability (a
+  // request's, and each fire's of a mission).
+  readFire() {
     const errors = {};
     const x = readNumber(this.inputs.x);
     const y = readNumber(this.inputs.y);
@@ -192,8 +199,6 @@ export class RequestForm {
     let most = 0;
     let mostName = null;
     const L = this.limits;
-    const upTo = (max) => (Number.isFinite(max) ? ` to ${fmtNumber(max)}` : " or more");
-    const within = (value, { min, max }) => value >= min && !(Number.isFinite(max) && value > max);
     for (const [name, cap] of this.caps) {
       const count = readNumber(cap.input);
       const value = count.empty ? 0 : count.value;
@@ -209,7 +214,12 @@ export class RequestForm {
       && !Object.keys(errors).some((k) => k.startsWith("cap:"))) {
       errors.capabilities = "Ask for at least one capability: a count of 1 or more.";
     }
+    return { fire: { location: [x.value, y.value], sensing, actuating }, errors, most, mostName };
+  }
 
+  read() {
+    const { fire, errors, most, mostName } = this.readFire();
+    const L = this.limits;
     const maxRobots = readNumber(this.inputs.max_robots);
     if (maxRobots.empty) errors.max_robots = "Max robots is required.";
     else if (!Number.isInteger(maxRobots.value) || !within(maxRobots.value, L.max_robots)) {
@@ -221,8 +231,18 @@ export class RequestForm {
     if (maxCost.empty) errors.max_cost = "Max cost is required.";
     else if (!Number.isFinite(maxCost.value) || maxCost.value <= 0) errors.max_cost = "Max cost must be a positive number.";
     else if (!within(maxCost.value, L.max_cost)) errors.max_cost = `Max cost may be at most ${fmtNumber(L.max_cost.max)}.`;
+    const { common, errors: more } = this.readCommon(true);
+    const task = { ...fire, max_robots: maxRobots.value, max_cost: maxCost.value, ...common };
+    return { task, errors: { ...errors, ...more } };
+  }
+
+  // What a request and a mission share: max time (a mission's is optional, the
+  // last robot's return), min battery, priority, execution, label.
+  readCommon(timeRequired) {
+    const errors = {};
+    const L = this.limits;
     const maxTime = readNumber(this.inputs.max_time);
-    if (maxTime.empty) errors.max_time = "Max time is required.";
+    if (maxTime.empty) { if (timeRequired) errors.max_time = "Max time is required."; }
     else if (!Number.isFinite(maxTime.value) || maxTime.value <= 0) errors.max_time = "Max time must be a positive number of seconds.";
     else if (!within(maxTime.value, L.max_time)) errors.max_time = `Max time may be at most ${fmtNumber(L.max_time.max)} s.`;
     const battery = readNumber(this.inputs.min_battery);
@@ -232,37 +252,50 @@ export class RequestForm {
     }
     const label = this.inputs.label.value.trim();
     if (label.length > L.label.max_length) errors.label = `The label may have at most ${fmtNumber(L.label.max_length)} characters.`;
-
-    const task = {
-      location: [x.value, y.value], sensing, actuating,
-      max_robots: maxRobots.value, max_cost: maxCost.value, max_time: maxTime.value,
+    const common = {
+      max_time: maxTime.empty ? null : maxTime.value,
       min_battery: minBattery,
       priority: this.form.querySelector("input[name=priority]:checked")?.value || "balanced",
       execution: this.form.querySelector("input[name=execution]:checked")?.value || "parallel",
     };
-    if (label) task.label = label;
-    return { task, errors };
+    if (label) common.label = label;
+    return { common, errors };
+  }
+
+  // The errors of a check, beside their fields and whole beside the button.
+  refuse(errors) {
+    const messages = Object.values(errors);
+    if (!messages.length) return false;
+    this.showErrors(errors);
+    // Beside the button too, whole: the field may be out of sight in a short window.
+    this.setResult(`Check the field${messages.length === 1 ? "" : "s"} marked in red: ${messages[0]}`
+      + (messages.length > 1 ? ` (and ${messages.length - 1} more)` : ""), "error");
+    return true;
   }
 
   async submit() {
     this.onCheck();
     this.clearErrors();
     this.setResult("", null);
-    const { task, errors } = this.read();
-    const messages = Object.values(errors);
-    if (messages.length) {
-      this.showErrors(errors);
-      // Beside the button too, whole: the field may be out of sight in a short window.
-      this.setResult(`Check the field${messages.length === 1 ? "" : "s"} marked in red: ${messages[0]}`
-        + (messages.length > 1 ? ` (and ${messages.length - 1} more)` : ""), "error");
+    if (this.mode === "mission") {
+      await this.onMission();
       return;
     }
+    const { task, errors } = this.read();
+    if (this.refuse(errors)) return;
     await this.onSubmit(task);
+  }
+
+  // "request" (one fire) or "mission" (several): the fields a mission has not are hidden.
+  setMode(mode) {
+    this.mode = mode === "mission" ? "mission" : "request";
+    document.body.dataset.send = this.mode;
+    if (!this.busy) this.setBusy(false);
   }
 
   // While a send is not settled the button stays off: pressing it again
   // would be a second request.
-  setBusy(busy, text = "Send a Request") {
+  setBusy(busy, text = this.mode === "mission" ? "Send the Mission" : "Send a Request") {
     this.busy = busy;
     this.button.disabled = busy;
     this.button.textContent = text;

@@ -30,9 +30,11 @@ function shapeFor(status) {
 }
 
 export class ForestMap {
-  constructor(element, { onPlace, onRobot }) {
+  constructor(element, { onPlace, onRobot, onEnd = () => {} }) {
     this.svg = element;
     this.onPlace = onPlace;
+    this.onEnd = onEnd;           // "End place" mode: a mission's end (mission.js)
+    this.overlays = [];           // drawn again with the map (routes.js)
     this.onRobot = onRobot;
     this.forest = { x0: 0, y0: 0, x1: 2000, y1: 2000 };
     this.view = { cx: 1000, cy: 1000, k: 1 };
@@ -40,13 +42,13 @@ export class ForestMap {
     this.fire = null;             // [x, y] or null
     this.selection = null;        // {location, robots: Set, active}
     this.filter = { cloud: "", status: "", capability: "" };
-    this.mode = "fire";           // "fire" or "inspect": what a click does
+    this.mode = "fire";           // "fire", "inspect" or "end": what a click does
     this.layers = {};
     const clip = svg("clipPath", { id: "map-clip" },
       svg("rect", { x: AREA.left, y: AREA.top, width: SIDE, height: SIDE, rx: 6 }));
     this.svg.append(svg("defs", {}, clip));
     // Robots, then the coalition above them, then the fire above everything.
-    for (const name of ["ground", "grid", "robots", "links", "coalition", "target", "fire"]) {
+    for (const name of ["ground", "grid", "mission", "robots", "links", "coalition", "target", "fire"]) {
       this.layers[name] = svg("g", { class: name });
       if (name !== "grid") this.layers[name].setAttribute("clip-path", "url(#map-clip)");
       this.svg.append(this.layers[name]);
@@ -146,6 +148,7 @@ export class ForestMap {
     for (const entry of this.robots.values()) this.place(entry);
     this.drawFire();
     this.drawSelection();
+    for (const overlay of this.overlays) overlay.draw();
     requestAnimationFrame(() => requestAnimationFrame(() => this.svg.classList.remove("instant")));
   }
 
@@ -357,7 +360,7 @@ export class ForestMap {
   }
 
   setMode(mode) {
-    this.mode = mode === "inspect" ? "inspect" : "fire";
+    this.mode = ["inspect", "end"].includes(mode) ? mode : "fire";
     this.svg.classList.toggle("inspect", this.mode === "inspect");
   }
 
@@ -373,6 +376,7 @@ export class ForestMap {
     if (point.x < AREA.left || point.x > AREA.right || point.y < AREA.top || point.y > AREA.bottom) return;
     const [x, y] = this.toWorld(point.x, point.y);
     const world = [Math.round(x), Math.round(y)];
+    if (this.mode === "end") { this.onEnd(world); return; }
     this.setFire(world, true);
     this.onPlace(world);
   }

@@ -15,6 +15,22 @@
 
 const BACKOFF_S = [2, 3, 5, 8, 10];
 
+// While a send is not settled: the button's word and the line under it, for
+// "the request" or "the mission". Null once it is settled.
+export function pendingLine(submission, what, detail) {
+  switch (submission.state) {
+    case "sending":
+      return { button: "Sending…", text: "Sending…" };
+    case "unconfirmed":
+      return { button: "Checking…", text: `Not confirmed yet: ${detail} The ${what} may have reached the IaaS; checking again with the same key `
+        + `in ${submission.retryIn} s (try ${submission.attempts + 1}), so it cannot be sent twice.` };
+    case "not-sent-yet":
+      return { button: "Trying…", text: `No IaaS has received it yet: ${detail} Trying again in ${submission.retryIn} s (try ${submission.attempts + 1}).` };
+    default:
+      return null;
+  }
+}
+
 export function newKey() {
   const bytes = new Uint8Array(16);
   crypto.getRandomValues(bytes);

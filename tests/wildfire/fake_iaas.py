@@ -52,6 +52,7 @@ class FakeIaas:
         self.mission_keys: dict[str, tuple[str, bytes]] = {}
         self.lock = threading.Condition()  # held by each call; notified by ``changed``
         self.version = 0  # of the missions, + 1 at each change
+        self.offers_missions = True  # False: an IaaS older than missions (404)
 
     def changed(self) -> None:
         """A test changed a mission: the event streams send it."""
@@ -106,6 +107,8 @@ class FakeIaas:
             return self.list(request)
         if path == "/v1/requests" and method == "POST":
             return self.create(request)
+        if path.startswith("/v1/missions") and not self.offers_missions:
+            return httpx.Response(404, json={"detail": "there is no such path."})
         if path.startswith("/v1/missions"):
             with self.lock:
                 return self.mission_call(request)

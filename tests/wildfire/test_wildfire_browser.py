@@ -678,7 +678,7 @@ def test_the_phone_layout_has_tabs(phone_page: Any, system: System, screenshots:
     width = page.evaluate("document.documentElement.scrollWidth")
     assert width <= 390, f"the page is {width} px wide at a phone's 390"
     tabs = page.locator("#tabs button")
-    expect(tabs).to_have_text(["Send", "Requests", "State", "Map"])
+    expect(tabs).to_have_text(["Send", "Requests", "State", "Map", "Mission"])
     for tab in tabs.all():
         assert tab.bounding_box()["height"] >= 44, "each tab is big enough to tap"
     expect(page.locator("#request-form")).to_be_visible()

@@ -169,6 +169,7 @@ def test_several_fires_are_sent_as_one_mission_and_its_plan_is_drawn(
     expect(page.locator("#end-on")).to_be_checked()
     expect(page.locator("#map #mission-end-draft")).to_be_visible()
     page.fill("#label", "three fires")
+    page.screenshot(path=str(screenshots / "mission-built.png"))
     page.click("#send")
     result = page.locator("#send-result")
     expect(result).to_have_text(re.compile(r"^Sent mis-\w+ \(“three fires”\): underway, plan 1\.$"))
@@ -304,3 +305,19 @@ def test_the_page_refuses_a_mission_it_can_tell_is_wrong(page: Any, system: Fake
         "The end place at (-50, 10) is outside the forest, which spans x from 0 to 2,000 m and "
         "y from 0 to 2,000 m.")
     assert len(system.missions_sent()) == sent
+
+
+def test_on_a_phone_the_mission_is_a_tab_of_its_own(
+        browser: Any, system: FakeSystem, console: Console, screenshots: Path) -> None:
+    for phone in open_page(browser, system, console, screenshots,  # type: ignore[arg-type]
+                           "mission-phone", 390, 844):
+        expect(phone.locator("#mission-pick option").first).to_have_attribute(
+            "value", re.compile("mis-"))
+        phone.get_by_role("button", name="Mission", exact=True).click()
+        expect(phone.locator("#gantt-chart")).to_be_visible()
+        expect(phone.locator("#map")).to_be_hidden()
+        assert phone.evaluate("""() => { const g = document.getElementById("gantt");
+            return g.scrollWidth <= g.clientWidth + 1; }"""), "the chart is wider than a phone"
+        phone.get_by_role("button", name="Send", exact=True).click()
+        phone.click("label[for='send-mission']")
+        expect(phone.locator("#add-fire")).to_be_visible()

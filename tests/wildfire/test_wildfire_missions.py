@@ -175,3 +175,15 @@ def test_the_events_of_a_mission_are_relayed_until_it_is_final() -> None:
                 "detail": "there is no mission 'mis-none'."}
     finally:
         served.stop()
+
+
+def test_an_iaas_without_missions_lists_none_and_says_so(
+        client: TestClient, clouds: tuple[FakeIaas, FakeIaas]) -> None:
+    """An IaaS older than missions answers 404 for /v1/missions: the list is empty, not an error."""
+    for fake in clouds:
+        fake.offers_missions = False
+    listed = client.get("/api/missions")
+    assert listed.status_code == 200
+    assert listed.json() == {"items": [], "next": None, "missing": [
+        "cloud-a (http://cloud-a.test) does not offer missions (its IaaS has no /v1/missions).",
+        "cloud-b (http://cloud-b.test) does not offer missions (its IaaS has no /v1/missions)."]}

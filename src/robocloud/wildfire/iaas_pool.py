@@ -319,6 +319,11 @@ class IaasPool:
         for endpoint, answer in zip(wanted, answers, strict=True):
             if isinstance(answer, IaasError):
                 self.mark(endpoint, answer)
+                if kind == "missions" and answer.status == 404:
+                    # An IaaS older than missions: it holds none.
+                    missing.append(f"{endpoint.name()} does not offer missions (its IaaS has "
+                                   f"no /v1/missions).")
+                    continue
                 if isinstance(answer, IaasUnreachable) or answer.status >= 500:
                     missing.append(f"the {kind} held by {endpoint.name()} are not shown: "
                                    f"{answer.detail}")

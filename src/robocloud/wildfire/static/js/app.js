@@ -1,5 +1,9 @@
 // The Wildfire Suppression Application: wires the live feed, the map, the
-// form, the tables and the REQUEST STATE panel together.
+// form, the tables, the REQUEST STATE panel and the missions together.
+//
+// Why one long file: it is the page's composition root, where each part
+// (its own module) meets the others through callbacks; the parts' own work
+// (drawing, checking, sending, following) stays in their modules.
 
 import { api } from "./api.js";
 import { Banner } from "./banner.js";
@@ -60,6 +64,7 @@ const missions = new MissionBuilder({
   api, form,
   onChange: (builder) => overlay.setDraft(builder.fires, builder.end()),
   onSent: (mission) => missionView.follow(mission.id),
+  onAdded: () => map.setFire(null),
 });
 const missionView = new MissionView({
   api, live, overlay,

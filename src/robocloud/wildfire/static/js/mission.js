@@ -39,8 +39,9 @@ export function cycleIn(ids, pairs) {
 }
 
 export class MissionBuilder {
-  constructor({ api, form, onChange, onSent }) {
+  constructor({ api, form, onChange, onSent, onAdded = () => {} }) {
     this.form = form;
+    this.onAdded = onAdded;       // a fire joined the list: the next one is placed afresh
     this.onChange = onChange;     // the fires or the end changed: the map draws them
     this.onSent = onSent;         // the IaaS has the mission: follow it
     this.fires = [];              // {id, location, sensing, actuating, duration}
@@ -73,6 +74,9 @@ export class MissionBuilder {
     if (duration !== "") entry.duration = Number(duration);
     this.fires.push(entry);
     $("fire-duration").value = "";
+    this.form.inputs.x.value = "";
+    this.form.inputs.y.value = "";
+    this.onAdded(entry);
     this.form.setResult(`${entry.id} added at ${fmtPoint(entry.location)}: ${needsOf(entry)}. Place the next fire, or send the mission.`, "info");
     this.changed();
   }

@@ -45,6 +45,7 @@ export class MissionView {
   async loadList() {
     const answer = await this.api.missions({ limit: 20 });
     if (!answer.ok) return;
+    if (!answer.data.items.length && !this.id) $("mission-error").textContent = (answer.data.missing || []).map(sentence).join(" ");
     for (const mission of answer.data.items) if (!this.known.has(mission.id) || mission.id !== this.id) this.known.set(mission.id, mission);
     this.fillPick();
     if (!this.id && answer.data.items.length) this.follow(answer.data.items[0].id, false);

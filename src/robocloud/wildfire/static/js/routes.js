@@ -80,8 +80,8 @@ export class MissionOverlay {
     const mark = svg("g", { class: `mission-fire${draft ? " draft" : ""}`, "data-task": task.id, "data-state": state,
       transform: `translate(${sx.toFixed(1)} ${sy.toFixed(1)})` },
     svg("title", { text: `${task.id} at ${fmtPoint(task.location)}: ${state}` }),
-    svg("circle", { r: 17 }),
-    svg("text", { y: 6, "text-anchor": "middle", text: String(index + 1) }));
+    svg("circle", { r: 22 }),
+    svg("text", { y: 8, "text-anchor": "middle", text: String(index + 1) }));
     mark.querySelector("circle").setAttribute("fill", taskColour(index));
     return mark;
   }
@@ -91,7 +91,7 @@ export class MissionOverlay {
     return svg("g", { class: `mission-end${draft ? " draft" : ""}`, id: draft ? "mission-end-draft" : "mission-end",
       transform: `translate(${sx.toFixed(1)} ${sy.toFixed(1)})` },
     svg("title", { text: `end place ${fmtPoint(point)}: every robot of the plan ends here` }),
-    svg("rect", { x: -13, y: -13, width: 26, height: 26, rx: 4 }),
-    svg("text", { y: 6, "text-anchor": "middle", text: "E" }));
+    svg("rect", { x: -18, y: -18, width: 36, height: 36, rx: 5 }),
+    svg("text", { y: 8, "text-anchor": "middle", text: "E" }));
   }
 }

@@ -172,7 +172,9 @@ def test_several_fires_are_sent_as_one_mission_and_its_plan_is_drawn(
     page.screenshot(path=str(screenshots / "mission-built.png"))
     page.click("#send")
     result = page.locator("#send-result")
-    expect(result).to_have_text(re.compile(r"^Sent mis-\w+ \(“three fires”\): underway, plan 1\.$"))
+    expect(result).to_have_text(re.compile(
+        r"^Sent mis-\w+ \(“three fires”\): underway, plan 1, [2-5] robots\.$"))
+    expect(result).to_have_attribute("data-kind", "ok")
 
     # ONE mission reached the IaaS, as the page built it, with a key.
     [sent] = system.missions_sent()
@@ -261,6 +263,8 @@ def test_the_plan_follows_the_mission_live_until_it_completes(
     expect(page.locator("#mission-tasks li[data-state='done']")).to_have_count(3)
     expect(page.locator("#mission-cancel")).to_be_disabled()
     expect(page.locator("#gantt-now")).to_have_count(0)
+    # This page sent nothing: its send line is not the mission's.
+    expect(page.locator("#send-result")).to_have_text("")
     wait_until(lambda: system.served.streams == 0, 10, "the event stream to close")
 
 
@@ -278,6 +282,7 @@ def test_a_mission_is_canceled_from_the_page(page: Any, system: FakeSystem) -> N
         "Cancelling stops every robot of the mission")
     page.click("#mission-cancel-confirm")
     expect(page.locator("#mission-state")).to_have_text("canceled")
+    expect(page.locator("#send-result")).to_have_text(f"{mission_id} was canceled.")
     assert [c.method for c in system.fake.calls
             if c.url.path == f"/v1/missions/{mission_id}"][-1] == "DELETE"
     expect(page.locator("#mission-tasks li[data-state='canceled']")).to_have_count(1)

@@ -70,6 +70,7 @@ const missionView = new MissionView({
   api, live, overlay,
   onShow: () => { showTableTab("mission"); if (page.tab !== "send") showTab("mission"); },
   onState: (mission) => announce(`Mission ${mission.id} is ${mission.state}.`),
+  onMission: (mission) => missions.say(mission),
 });
 for (const radio of document.querySelectorAll("input[name=send-mode]")) {
   radio.addEventListener("change", () => {

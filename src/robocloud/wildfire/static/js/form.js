@@ -370,6 +370,7 @@ export class RequestForm {
   setResult(text, kind) {
     // The kind first: the words never show in the colour of the line before.
     if (kind) this.result.dataset.kind = kind; else delete this.result.dataset.kind;
+    delete this.result.dataset.mission;   // the line is about something else now (mission.js say)
     this.result.textContent = text;
   }
 }

@@ -194,8 +194,7 @@ export class MissionBuilder {
       case "confirmed": {
         form.setBusy(false);
         const mission = submission.request;
-        const name = mission.label ? `${mission.id} (“${mission.label}”)` : mission.id;
-        form.setResult(`Sent ${name}: ${mission.state}${mission.plan ? `, plan ${mission.plan.version}` : ""}.`, mission.state === "rejected" ? "error" : "ok");
+        this.say(mission, true);
         this.fires = [];
         this.orders = [];
         this.next = 1;
@@ -217,6 +216,33 @@ export class MissionBuilder {
       default:
         form.setBusy(false);
     }
+  }
+
+  // The send's line follows its mission, in the IaaS's words: green only once
+  // the IaaS says the plan is being carried out, so a rejection is never green.
+  say(mission, sent = false) {
+    const line = this.form.result;
+    if (!sent && line.dataset.mission !== mission.id) return;
+    const name = mission.label ? `${mission.id} (“${mission.label}”)` : mission.id;
+    const robots = ((mission.plan && mission.plan.robots) || []).length;
+    switch (mission.state) {
+      case "rejected":
+      case "failed":
+        this.form.setResult(`${name} was ${mission.state}: ${sentence(humanize(mission.reason || "no reason given"))}`, "error");
+        break;
+      case "canceled":
+        this.form.setResult(`${name} was canceled.`, "info");
+        break;
+      case "underway":
+        this.form.setResult(`Sent ${name}: underway, plan ${mission.plan ? mission.plan.version : "–"}, ${robots} robot${robots === 1 ? "" : "s"}.`, "ok");
+        break;
+      case "completed":
+        this.form.setResult(`Sent ${name}: completed.`, "ok");
+        break;
+      default:
+        this.form.setResult(`Sent ${name}: the IaaS has it (${mission.state}) and is planning…`, "info");
+    }
+    line.dataset.mission = mission.id;
   }
 
   // The IaaS names the field ("tasks[1].location: ..."): its fire is marked in the list.

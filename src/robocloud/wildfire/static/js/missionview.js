@@ -19,12 +19,13 @@ function percent(value) {
 }
 
 export class MissionView {
-  constructor({ api, live, overlay, onShow = () => {}, onState = () => {} }) {
+  constructor({ api, live, overlay, onShow = () => {}, onState = () => {}, onMission = () => {} }) {
     this.api = api;
     this.live = live;
     this.overlay = overlay;
     this.onShow = onShow;          // a mission was chosen: the page brings its tab forward
     this.onState = onState;        // its state changed: the page says so
+    this.onMission = onMission;    // every update, as the IaaS gives it
     this.mission = null;
     this.id = null;
     this.source = null;
@@ -127,6 +128,7 @@ export class MissionView {
     this.drawHistory();
     this.drawChart();
     this.overlay.setMission(mission);
+    this.onMission(mission);
     if (announce) this.onShow(mission);
     else if (before && before.id === mission.id && before.state !== mission.state) this.onState(mission);
   }

@@ -257,6 +257,20 @@ def test_the_plan_follows_the_mission_live_until_it_completes(
     expect(page.locator(f"#gantt-chart .gantt-row[data-robot='{gone}']")).to_have_attribute(
         "data-state", "failed")
     page.screenshot(path=str(screenshots / "mission-replanned.png"))
+    # A robot at work for the mission says so in its card: which fire, which mission.
+    worker = first["robots"][0]
+    at_work = next(r for r in system.fake.robots if r["id"] == worker)
+    at_work["status"], at_work["request"] = "busy", f"{mission_id}.1"
+    expect(page.locator(f"#map .robot[data-robot='{worker}']")).to_have_attribute(
+        "data-status", "busy")
+    page.keyboard.down("Shift")
+    page.mouse.click(*map_point(page, *at_work["position"]))
+    page.keyboard.up("Shift")
+    card = page.locator("#robot-card")
+    expect(card).to_contain_text(f"fire-1 of mission “three fires” ({mission_id})")
+    expect(card).to_contain_text("one of this application's missions")
+    page.click("#robot-card-close")
+    at_work["status"], at_work["request"] = "idle", None
     system.change(mission_id, lambda m: advance(m, 1e6))
     expect(page.locator("#mission-state")).to_have_text("completed")
     expect(page.locator("#mission-progress")).to_have_text("100%")

@@ -573,7 +573,8 @@ function showRobotCard(id, move = true) {
   const rows = [
     ["Cloud", robot.cloud], ["Status", robot.status], ["Battery", `${fmtNumber(robot.battery)}%`],
     ["Capabilities", (robot.capabilities || []).join(", ") || "–"],
-    ["Request", assignment ? requestName(assignment.request) : robot.request ? `${robot.request} (not this application's)` : "–"],
+    ["Request", assignment ? requestName(assignment.request) : missionView.taskName(robot.request)
+      || (robot.request ? `${robot.request} (not this application's)` : "–")],
     ["Task", robot.phase ? `${robot.phase}${Number.isFinite(robot.progress) ? ` · ${Math.round(robot.progress * 100)}%` : ""}` : "–"],
     ["ETA", assignment ? fmtDuration(live.robotEta(robot, assignment.time)) : "–"],
     ["Position", `(${fmtNumber(robot.x)}, ${fmtNumber(robot.y)}) m`],
@@ -600,7 +601,9 @@ $("robot-card-close").addEventListener("click", () => showRobotCard(null));
 
 // What a robot's status means, in a sentence, for its card.
 function statusMeaning(robot, assignment, age) {
-  const ours = assignment ? `for ${requestName(assignment.request)}, one of this application's requests` : null;
+  const task = missionView.taskName(robot.request);
+  const ours = assignment ? `for ${requestName(assignment.request)}, one of this application's requests`
+    : task ? `for ${task}, one of this application's missions` : null;
   const theirs = robot.request ? `for request ${robot.request}, not one of this application's`
     : "for work outside this application (another user of its cloud)";
   let text;

@@ -43,6 +43,19 @@ export class MissionView {
     }).observe($("gantt"));
   }
 
+  // What a robot working on request `requestId` works for, when it is a task of a
+  // mission this page knows: "fire-2 of “three fires” (mis-…)"; else null. A
+  // mission's task reaches a robot as "<mission id>.<n>", n from 1 in the order
+  // of the mission's tasks (robocloud.domain.mission_ids).
+  taskName(requestId) {
+    const match = /^(mis-[a-z0-9]+)\.([1-9][0-9]*)$/.exec(requestId || "");
+    const mission = match && this.known.get(match[1]);
+    if (!mission) return null;
+    const task = ((mission.mission && mission.mission.tasks) || [])[Number(match[2]) - 1];
+    const name = mission.label ? `“${mission.label}” (${mission.id})` : mission.id;
+    return `${task ? task.id : `task ${match[2]}`} of mission ${name}`;
+  }
+
   async loadList() {
     const answer = await this.api.missions({ limit: 20 });
     if (!answer.ok) return;

@@ -114,7 +114,9 @@ def start_mission_mode(page: Any) -> None:
     expect(page.locator("#mission-builder")).to_be_visible()
     expect(page.locator("#max-robots")).to_be_hidden()
     expect(page.locator("#send")).to_have_text("Send the Mission")
-    page.fill("#max-time", "")
+    # A mission's max time is its own (the last robot's return): empty at first.
+    expect(page.locator("#max-time")).to_have_value("")
+    expect(page.locator("#priority-help")).to_contain_text("last robot is home")
     page.fill("#min-battery", "0")
 
 

@@ -5,7 +5,9 @@ the IaaS's HTTP API with the application's key, which the browser never sees.
 The page places the fire, sends requests, follows their state, shows the
 chosen coalition on the forest map with the Pareto front beside it, and
 cancels requests: the thesis's three buttons, "Send a Request", "Get State
-of a Request" and "Cancel a Request".
+of a Request" and "Cancel a Request". Several fires may be sent as one
+mission (planned jointly by the IaaS), followed as a Gantt chart of its plan
+and routes on the map, and canceled.
 
 It talks to the IaaS over HTTP only, as any other application would.
 """

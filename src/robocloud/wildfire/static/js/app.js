@@ -13,7 +13,7 @@ import { ForestMap } from "./map.js";
 import { MissionBuilder } from "./mission.js";
 import { MissionView } from "./missionview.js";
 import { MissionOverlay } from "./routes.js";
-import { pendingLine, Sender } from "./sender.js";
+import { Sender } from "./sender.js";
 import { requestName, StatePanel } from "./state.js";
 import { REQUESTS_PER_PAGE, RequestsTable, RobotsTable } from "./tables.js";
 import {
@@ -276,15 +276,8 @@ $("alerts-button").addEventListener("click", () => {
 
 // --- sending ---------------------------------------------------------------------------
 function showSend(submission) {
-  const stop = $("stop-checking");
-  stop.hidden = !["unconfirmed", "not-sent-yet"].includes(submission.state);
+  if (form.showPending(submission, "request")) return;
   const detail = sentence(humanize(submission.detail || ""));
-  const pending = pendingLine(submission, "request", detail);
-  if (pending) {
-    form.setBusy(true, pending.button);
-    form.setResult(pending.text, "pending");
-    return;
-  }
   switch (submission.state) {
     case "confirmed": {
       form.setBusy(false);

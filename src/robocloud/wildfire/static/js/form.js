@@ -3,6 +3,7 @@
 // shown beside its field; the IaaS's own sentence (422) is placed beside the
 // field it names, in the form's words.
 
+import { pendingLine } from "./sender.js";
 import { el, fmtDuration, fmtNumber, humanize, sentence } from "./util.js";
 
 const FIELDS = ["location", "capabilities", "max_robots", "max_cost", "max_time", "min_battery", "label", "mission", "form"];
@@ -13,6 +14,13 @@ const PRIORITY_TEXT = {
   balanced: "Balanced: time, cost and size weigh a third each, by how much the coalitions differ.",
   time: "Time critical: favours quicker coalitions: time weighs 0.6, cost and size 0.2 each.",
   cost: "Cost critical: favours cheaper coalitions: cost weighs 0.6, time and size 0.2 each.",
+};
+
+// What each priority asks of a mission's plan (docs/model.md, "The objective, by priority").
+const MISSION_PRIORITY_TEXT = {
+  balanced: "Balanced: the cheapest plan whose last robot is home at most a tenth later than in the quickest plan found.",
+  time: "Time critical: the plan whose last robot is home first; the cheapest of those.",
+  cost: "Cost critical: the cheapest plan within max time (any time, without one).",
 };
 
 // The task's bounds, as the IaaS's own schema gives them (GET /api/config
@@ -118,7 +126,7 @@ export class RequestForm {
 
   explainPriority() {
     const priority = this.form.querySelector("input[name=priority]:checked")?.value || "balanced";
-    this.form.querySelector("#priority-help").textContent = PRIORITY_TEXT[priority];
+    this.form.querySelector("#priority-help").textContent = (this.mode === "mission" ? MISSION_PRIORITY_TEXT : PRIORITY_TEXT)[priority];
   }
 
   // Max time is robot time: say what it is in real time.
@@ -288,9 +296,30 @@ export class RequestForm {
 
   // "request" (one fire) or "mission" (several): the fields a mission has not are hidden.
   setMode(mode) {
-    this.mode = mode === "mission" ? "mission" : "request";
+    const next = mode === "mission" ? "mission" : "request";
+    if (next !== this.mode) {
+      // Max time is each one's own: a request's bounds its coalition, a mission's
+      // (optional, empty at first) the last robot's return.
+      const kept = this.inputs.max_time.value;
+      this.inputs.max_time.value = this.otherMaxTime ?? (next === "mission" ? "" : kept);
+      this.otherMaxTime = kept;
+      this.explainTime();
+    }
+    this.mode = next;
+    this.explainPriority();
     document.body.dataset.send = this.mode;
     if (!this.busy) this.setBusy(false);
+  }
+
+  // While a send (of "the request" or "the mission") is not settled: the
+  // button's word, the line under it and "Stop checking". False once settled.
+  showPending(submission, what) {
+    this.form.querySelector("#stop-checking").hidden = !["unconfirmed", "not-sent-yet"].includes(submission.state);
+    const pending = pendingLine(submission, what, sentence(humanize(submission.detail || "")));
+    if (!pending) return false;
+    this.setBusy(true, pending.button);
+    this.setResult(pending.text, "pending");
+    return true;
   }
 
   // While a send is not settled the button stays off: pressing it again

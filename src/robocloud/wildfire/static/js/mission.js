@@ -6,7 +6,7 @@
 // for every retry (sender.js, the rules of a request's send).
 
 import { forestRefusal } from "./form.js";
-import { pendingLine, Sender } from "./sender.js";
+import { Sender } from "./sender.js";
 import { $, el, fmtNumber, fmtPoint, humanize, sentence } from "./util.js";
 
 // A fire's colour, the same on the map, in the list and in the Gantt chart
@@ -182,14 +182,8 @@ export class MissionBuilder {
 
   showSend(submission) {
     const form = this.form;
+    if (form.showPending(submission, "mission")) return;
     const detail = sentence(humanize(submission.detail || ""));
-    $("stop-checking").hidden = !["unconfirmed", "not-sent-yet"].includes(submission.state);
-    const pending = pendingLine(submission, "mission", detail);
-    if (pending) {
-      form.setBusy(true, pending.button);
-      form.setResult(pending.text, "pending");
-      return;
-    }
     switch (submission.state) {
       case "confirmed": {
         form.setBusy(false);

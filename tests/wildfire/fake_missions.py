@@ -65,7 +65,8 @@ def plan(mission: Mapping[str, Any], robots: list[dict[str, Any]], *, after: flo
             able.sort(key=lambda r: state[r["id"]][1]
                       + _distance(state[r["id"]][0], task["location"]) / speed[r["id"]])
             if len(able) < count:
-                raise ValueError(f"no robot of the federation has the capability {capability!r}")
+                raise ValueError(f"{task['id']} needs {count} robots bringing {capability!r}, "
+                                 f"and {len(able)} do")
             members += [r["id"] for r in able[:count]]
         arrive = {m: state[m][1] + _distance(state[m][0], task["location"]) / speed[m]
                   for m in members}

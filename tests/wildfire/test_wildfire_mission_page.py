@@ -342,3 +342,21 @@ def test_on_a_phone_the_mission_is_a_tab_of_its_own(
         phone.get_by_role("button", name="Send", exact=True).click()
         phone.click("label[for='send-mission']")
         expect(phone.locator("#add-fire")).to_be_visible()
+
+
+def test_a_mission_with_no_plan_is_red_with_the_iaas_reason(page: Any, system: FakeSystem
+                                                            ) -> None:
+    start_mission_mode(page)
+    add_fire(page, 700, 700, {"grabber": 3, "kicker": 3})
+    page.click("#send")
+    result = page.locator("#send-result")
+    expect(result).to_have_text(re.compile(
+        r"^mis-\w+ was rejected: Fire-1 needs 3 robots bringing 'kicker', and 2 do\.$"))
+    expect(result).to_have_attribute("data-kind", "error")
+    expect(page.locator("#mission-state")).to_have_text("rejected")
+    expect(page.locator("#mission-reason")).to_have_text(
+        "Fire-1 needs 3 robots bringing 'kicker', and 2 do.")
+    expect(page.locator("#mission-tasks li[data-task='fire-1']")).to_have_attribute(
+        "data-state", "not planned")
+    expect(page.locator("#gantt-empty")).to_have_text("No plan: see the reason.")
+    expect(page.locator("#mission-cancel")).to_be_disabled()

@@ -176,7 +176,9 @@ export class MissionView {
     const byId = new Map(plan.tasks.map((t) => [t.id, t]));
     const wanted = (m.mission && m.mission.tasks) || [];
     const rows = wanted.map((task) => {
-      const planned = byId.get(task.id) || { state: m.state === "canceled" ? "canceled" : "pending", progress: 0, robots: [] };
+      // A fire the plan has not (yet): pending while planning, else what became of the mission.
+      const unplanned = m.state === "planning" ? "pending" : m.state === "canceled" ? "canceled" : "not planned";
+      const planned = byId.get(task.id) || { state: unplanned, progress: 0, robots: [] };
       const dot = el("span", { class: "task-dot", "aria-hidden": "true", text: String(wanted.indexOf(task) + 1) });
       dot.style.background = this.overlay.colourOf(task.id);
       const value = planned.state === "done" ? 1 : Math.max(0, Math.min(1, planned.progress || 0));

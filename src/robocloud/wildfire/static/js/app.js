@@ -626,6 +626,7 @@ function showTableTab(name) {
   }
   robotsTable.visible = name === "robots";
   robotsTable.render();
+  if (name === "mission") missionView.loadList();  // missions sent from elsewhere, too
 }
 TABLE_TABS.forEach((tab, i) => {
   $(`tab-${tab}`).addEventListener("click", () => showTableTab(tab));

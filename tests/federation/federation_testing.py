@@ -6,12 +6,13 @@ import contextlib
 import socket
 import threading
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from datetime import UTC, datetime, timedelta
 
 from robocloud.domain import Robot
 from robocloud.federation.home import Home
+from robocloud.federation.lending import Aside, never_aside
 from robocloud.federation.memory import MemoryNetwork, MemoryOverlay
 from robocloud.federation.messages import LoanQuery
 from robocloud.federation.overlay import Overlay, Unreachable, ZenohOverlay
@@ -145,6 +146,7 @@ def clouds(
     lease_max: float = 30.0,
     origin_deadline: float = 60.0,
     lend_share: float = 1.0,
+    set_aside: dict[str, Callable[[str], Aside | None]] | None = None,
 ) -> tuple[MemoryNetwork, dict[str, Cloud]]:
     """One cloud per name, each with ``robots`` robots (``a-0``, ``a-1`` ... for cloud-a).
 
@@ -168,6 +170,7 @@ def clouds(
             origin_deadline=origin_deadline,
             lend_share=lend_share,
             coalition_of=origin.coalition_robots,
+            set_aside=(set_aside or {}).get(name, never_aside),
             clock=time.utc,
             monotonic=time.mono,
         )

@@ -7,25 +7,10 @@ selections leave it out either way, and its home lends it to no other cloud.
 
 from __future__ import annotations
 
-import asyncio
-from typing import Any
+from federation_testing import candidates_seen, clouds
 
-from federation_testing import clouds
-
-from robocloud.domain import Task
 from robocloud.federation.messages import Reservation
-from robocloud.iaas import lifecycle as lc
-from robocloud.iaas.actor import RequestActor, Shell
 from robocloud.iaas.routes import RobotRoutes
-from robocloud.iaas.selector import SelectorSettings, failed
-
-TASK = {
-    "location": [0.0, 0.0],
-    "actuating": {"grabber": 1},
-    "max_robots": 1,
-    "max_cost": 10.0,
-    "max_time": 10.0,
-}
 
 
 class Wall:
@@ -41,36 +26,6 @@ class Wall:
 def set_aside(routes: RobotRoutes, robot: str) -> None:
     routes.strike(robot, "robot did not answer within the ack deadline (1 s)")
     assert routes.strike(robot, "no progress for 30 s") is not None
-
-
-def candidates_seen(cloud: Any, routes: RobotRoutes) -> list[tuple[str, ...]]:
-    """The candidates of one request's selection at ``cloud`` (none is chosen)."""
-    record, _ = cloud.store.create_request("app", TASK)
-    seen: list[tuple[str, ...]] = []
-
-    async def in_thread(function: Any, *args: Any) -> Any:
-        return await asyncio.to_thread(function, *args)
-
-    async def store_write(function: Any, *args: Any) -> Any:
-        return function(*args)
-
-    async def selector(problem: Any, task: Task) -> Any:
-        seen.append(tuple(problem.ids))
-        return failed(len(problem.ids), 0.0, SelectorSettings(), "none chosen (test)")
-
-    shell = Shell(
-        store=cloud.store,
-        view=cloud.view,
-        selector=selector,
-        rules=lc.Rules(),
-        blocking=in_thread,
-        store_write=store_write,
-        publish=lambda _: None,
-        routes=routes,
-    )
-    life = lc.Life(record.id, Task.model_validate(TASK))
-    asyncio.run(RequestActor(shell, life, record).run(lc.Start()))
-    return seen
 
 
 def test_a_robot_of_another_cloud_the_origin_set_aside_is_not_among_its_candidates() -> None:
@@ -91,7 +46,7 @@ def test_a_home_neither_offers_nor_lends_a_robot_it_set_aside() -> None:
     set_aside(b_routes, "b-0")
 
     # Not offered: cloud-a's selection never sees it.
-    assert candidates_seen(a, RobotRoutes()) == [("a-0", "a-1", "b-1")]
+    assert candidates_seen(a) == [("a-0", "a-1", "b-1")]
     assert network.calls.count(("cloud-a", "cloud-b", "idle")) == 1
 
     # Not lent, though asked by name: the refusal says why, and nothing is stored.
@@ -106,7 +61,7 @@ def test_a_home_neither_offers_nor_lends_a_robot_it_set_aside() -> None:
     # Once its cool-down is over it is offered and lent again.
     wall.now += 301.0
     a.view.forget_gathered()
-    assert candidates_seen(a, RobotRoutes()) == [("a-0", "a-1", "b-0", "b-1")]
+    assert candidates_seen(a) == [("a-0", "a-1", "b-0", "b-1")]
     reply = a.overlay.reserve("cloud-b", Reservation(request_id="req-1", robots=["b-0"]))
     assert reply.taken == [] and reply.error is None
     assert [loan.robot for loan in b.store.loans()] == ["b-0"]

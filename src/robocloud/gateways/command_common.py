@@ -12,13 +12,13 @@ from __future__ import annotations
 import argparse
 import contextlib
 import logging
-import signal
 import threading
 from collections.abc import Callable, Iterator
 from typing import TYPE_CHECKING
 
 from robocloud.errors import InvalidInput
 from robocloud.federation import security
+from robocloud.stopping import stop_on_signals
 
 if TYPE_CHECKING:
     import zenoh
@@ -88,16 +88,8 @@ def run_until_stopped(
         level=args.log_level.upper(),
         format=f"%(asctime)s {args.cloud}-{kind} %(levelname)s %(name)s: %(message)s",
     )
-    stop = threading.Event()
-    previous = {}
-    if threading.current_thread() is threading.main_thread():
-        for signum in (signal.SIGINT, signal.SIGTERM):
-            previous[signum] = signal.signal(signum, lambda *_: stop.set())
-    try:
+    with stop_on_signals() as stop:
         run(stop)
-    finally:
-        for signum, handler in previous.items():
-            signal.signal(signum, handler)
     return 0
 
 

@@ -28,9 +28,10 @@ F_m(x) - pi_m x lies above its least value over the node's range, pi_m being
 the class's price (the multipliers of what it brings, less mu). Every term
 after LB is non-negative, so *all* x whose cost is within a budget of LB are
 found by enumerating the class counts whose deviations fit in that budget.
-Where the relaxation is integral (almost always, measured in benchmarks/)
-the budget is docs/model.md's tolerance: the enumeration then lists every tie,
-which the tie rule (the smallest sorted id list) needs. Only where that list
+Where the relaxation is integral (almost always:
+benchmarks/results/design-notes.md, integral-relaxation) the budget is
+docs/model.md's tolerance: the enumeration then lists every tie, which the
+tie rule (the smallest sorted id list) needs. Only where that list
 would be long does the node branch. The bound is computed here from the
 duals, so a slightly inexact dual from the solver weakens a bound and never
 makes one wrong.

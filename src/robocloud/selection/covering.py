@@ -1,5 +1,10 @@
 """Cheapest covers by capability class: the search step of the exact optimizer.
 
+Why one long file: the proof below is what makes the search correct (the
+bound from the duals, the enumeration's budget), and the solver, the branch
+and bound and the Lagrangian enumeration it speaks of share each node's
+state; kept apart, a rule would stand away from its proof.
+
 A candidate's *class* is the set of required capabilities it brings (its
 U_i). Within a class robots differ only in t_i and c_i, so once the robots
 allowed are fixed (in the exact optimizer: every robot no slower than a time

@@ -1,5 +1,9 @@
 """One NXT brick as a robot: what it reports, the task it is on, the movement under way.
 
+Why one long file: the brick's state machine is one class, ``Brick``: each
+answer, silence and command moves the same task through its movements; the
+telegrams, the odometry, the battery and the link are apart already.
+
 No I/O here: the driver (``driver.py``) feeds a ``Brick`` what the brick
 answers, under the gateway's lock, asks it which movement to start and whether
 to stop the motors, and carries that out over the link.

@@ -1,5 +1,10 @@
 """One AGV: its VDA 5050 messages read as a robot's State, and its robocloud order followed.
 
+Why one long file: the AGV's state machine is one class, ``Agv``: every
+message and tick of the AGV (its order, its acceptance, the reconciliation
+after a restart, its liveliness) reads and moves the same state, so the
+checks below are rules of that one class.
+
 No I/O here: the gateway feeds an ``Agv`` what the broker says, under its lock,
 and asks it for the robot's state and for the order of an assign.
 

@@ -140,8 +140,8 @@ class Home:
         origin_deadline: float = ORIGIN_DEADLINE,
         lend_share: float = LEND_SHARE,
         reserve_rate: float = RESERVE_RATE,
-        coalition_of: Callable[[str], list[str]] = lambda request_id: [],
         set_aside: Callable[[str], Aside | None] = never_aside,
+        coalition_of: Callable[[str], list[str]] = lambda request_id: [],
         monotonic: Callable[[], float] = time.monotonic,
         clock: Callable[[], datetime] = utc_now,
     ) -> None:
@@ -157,12 +157,12 @@ class Home:
         self.lend_share = lend_share
         self.reserve_rate = ReserveRate(monotonic, reserve_rate, RESERVE_BURST)
         self._undispatched = Undispatched(cloud, lease_max, monotonic)
-        # The robots working for one of this cloud's requests now (the IaaS's
-        # RobotRoutes): what another cloud that lent some is told.
-        self.coalition_of = coalition_of
         # The robots this cloud's own selections leave out for failing (the
         # IaaS's RobotRoutes.aside): neither offered nor lent to other clouds.
         self.set_aside = set_aside
+        # The robots working for one of this cloud's requests now (the IaaS's
+        # RobotRoutes): what another cloud that lent some is told.
+        self.coalition_of = coalition_of
         self._clock = clock
         self._lock = threading.Lock()
         self._lent: dict[str, _Lent] = {}

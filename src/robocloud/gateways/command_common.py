@@ -63,8 +63,8 @@ def add_common_arguments(
 def check_common(args: argparse.Namespace, gateway_name: str | None) -> None:
     """What every gateway refuses before it opens anything: the cloud's and the
     gateway's names, the endpoints, the timeout, the security flags."""
-    from robocloud.cli.iaas_command import check_endpoints
     from robocloud.fleet.keys import check_chunk
+    from robocloud.fleet.zenoh_session import check_endpoints
 
     check_chunk(args.cloud, "--cloud")
     if gateway_name is not None:

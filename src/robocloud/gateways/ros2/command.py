@@ -55,8 +55,8 @@ def add_ros2_arguments(parser: argparse.ArgumentParser) -> None:
 
 def check_arguments(args: argparse.Namespace) -> RobotsFile:
     """Everything the gateway would refuse, before it opens anything."""
-    from robocloud.cli.iaas_command import check_endpoints
     from robocloud.fleet.keys import check_chunk
+    from robocloud.fleet.zenoh_session import check_endpoints
 
     check_common(args, args.gateway_name)
     robots = load_robots(args.robots)

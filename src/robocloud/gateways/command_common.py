@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import logging
+import sys
 import threading
 from collections.abc import Callable, Iterator
 from typing import TYPE_CHECKING
@@ -91,6 +92,12 @@ def run_until_stopped(
     with stop_on_signals() as stop:
         run(stop)
     return 0
+
+
+def wait_until_stopped(stop: threading.Event, banner: str) -> None:
+    """Say what runs (one line on stderr, ending "Ctrl-C stops"), then wait for ``stop``."""
+    print(f"{banner}; Ctrl-C stops", file=sys.stderr, flush=True)
+    stop.wait()
 
 
 @contextlib.contextmanager

@@ -13,21 +13,14 @@ the bricks file read, before anything is opened.
 from __future__ import annotations
 
 import argparse
-import sys
 import threading
 
-from robocloud.gateways.command_common import (
-    add_common_arguments,
-    check_common,
-    robot_side,
-    run_until_stopped,
-    zenoh_client,
-)
+from robocloud.gateways import command_common as common
 from robocloud.gateways.nxt.bricks import BricksFile, load_bricks
 
 
 def add_nxt_arguments(parser: argparse.ArgumentParser) -> None:
-    add_common_arguments(parser, "the bricks")
+    common.add_common_arguments(parser, "the bricks")
     parser.add_argument(
         "--bricks",
         required=True,
@@ -46,28 +39,26 @@ def add_nxt_arguments(parser: argparse.ArgumentParser) -> None:
 
 def check_arguments(args: argparse.Namespace) -> BricksFile:
     """Everything the gateway would refuse, before it opens anything."""
-    check_common(args, args.gateway_name)
+    common.check_common(args, args.gateway_name)
     return load_bricks(args.bricks)
 
 
 def nxt_command(args: argparse.Namespace) -> int:
     """Run the gateway until SIGINT or SIGTERM; 0 when it stopped cleanly."""
     bricks = check_arguments(args)
-    return run_until_stopped(args, "nxt", lambda stop: run_gateway(args, bricks, stop))
+    return common.run_until_stopped(args, "nxt", lambda stop: run_gateway(args, bricks, stop))
 
 
 def run_gateway(args: argparse.Namespace, bricks: BricksFile, stop: threading.Event) -> None:
     from robocloud.gateways.nxt.gateway import NxtGateway
 
     with (
-        zenoh_client(args) as session,
-        NxtGateway(robot_side(session, args.cloud, args.gateway_name), bricks),
+        common.zenoh_client(args) as session,
+        NxtGateway(common.robot_side(session, args.cloud, args.gateway_name), bricks),
     ):
-        print(
+        common.wait_until_stopped(
+            stop,
             f"NXT gateway: {len(bricks.robots)} brick{'s' if len(bricks.robots) > 1 else ''} "
             f"({', '.join(bricks.robots)}) as robots of {args.cloud} at "
-            f"{', '.join(args.connect)}; Ctrl-C stops",
-            file=sys.stderr,
-            flush=True,
+            f"{', '.join(args.connect)}",
         )
-        stop.wait()

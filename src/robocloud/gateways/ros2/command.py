@@ -12,21 +12,14 @@ the robots file read, before anything is opened.
 from __future__ import annotations
 
 import argparse
-import sys
 import threading
 
-from robocloud.gateways.command_common import (
-    add_common_arguments,
-    check_common,
-    robot_side,
-    run_until_stopped,
-    zenoh_client,
-)
+from robocloud.gateways import command_common as common
 from robocloud.gateways.ros2.robots_file import RobotsFile, load_robots
 
 
 def add_ros2_arguments(parser: argparse.ArgumentParser) -> None:
-    add_common_arguments(
+    common.add_common_arguments(
         parser,
         "the robots",
         "the cloud's router (default 10); robots are waited for as long as it takes",
@@ -58,7 +51,7 @@ def check_arguments(args: argparse.Namespace) -> RobotsFile:
     from robocloud.fleet.keys import check_chunk
     from robocloud.fleet.zenoh_session import check_endpoints
 
-    check_common(args, args.gateway_name)
+    common.check_common(args, args.gateway_name)
     robots = load_robots(args.robots)
     for robot, entry in robots.robots.items():
         check_chunk(robot, "robot id")
@@ -69,24 +62,22 @@ def check_arguments(args: argparse.Namespace) -> RobotsFile:
 def ros2_command(args: argparse.Namespace) -> int:
     """Run the gateway until SIGINT or SIGTERM; 0 when it stopped cleanly."""
     robots = check_arguments(args)
-    return run_until_stopped(args, "ros2", lambda stop: run_gateway(args, robots, stop))
+    return common.run_until_stopped(args, "ros2", lambda stop: run_gateway(args, robots, stop))
 
 
 def run_gateway(args: argparse.Namespace, robots: RobotsFile, stop: threading.Event) -> None:
     from robocloud.gateways.ros2.gateway import Ros2Gateway
 
-    with zenoh_client(args) as session:
+    with common.zenoh_client(args) as session:
         name = None if args.robot_keys else args.gateway_name
-        gateway = Ros2Gateway(robot_side(session, args.cloud, name), robots)
+        gateway = Ros2Gateway(common.robot_side(session, args.cloud, name), robots)
         gateway.start()
-        print(
-            f"ROS 2 gateway: {len(robots.robots)} robots of {args.robots} are robots of "
-            f"{args.cloud} at {', '.join(args.connect)} "
-            f"({'robot keys' if args.robot_keys else 'fleet ' + args.gateway_name}); Ctrl-C stops",
-            file=sys.stderr,
-            flush=True,
-        )
         try:
-            stop.wait()
+            common.wait_until_stopped(
+                stop,
+                f"ROS 2 gateway: {len(robots.robots)} robots of {args.robots} are robots of "
+                f"{args.cloud} at {', '.join(args.connect)} "
+                f"({'robot keys' if args.robot_keys else 'fleet ' + args.gateway_name})",
+            )
         finally:
             gateway.stop()

@@ -15,17 +15,10 @@ from __future__ import annotations
 
 import argparse
 import logging
-import sys
 import threading
 
 from robocloud.errors import InvalidInput
-from robocloud.gateways.command_common import (
-    add_common_arguments,
-    check_common,
-    robot_side,
-    run_until_stopped,
-    zenoh_client,
-)
+from robocloud.gateways import command_common as common
 from robocloud.gateways.vda5050.agv import Timing
 from robocloud.gateways.vda5050.capabilities import GatewayCapabilities, load_capabilities
 from robocloud.gateways.vda5050.messages import MAJOR
@@ -35,7 +28,7 @@ DEFAULT_MQTT = "127.0.0.1:1883"
 
 
 def add_vda5050_arguments(parser: argparse.ArgumentParser) -> None:
-    add_common_arguments(parser, "the AGVs", "the router and the broker (default 10)")
+    common.add_common_arguments(parser, "the AGVs", "the router and the broker (default 10)")
     parser.add_argument(
         "--mqtt",
         default=DEFAULT_MQTT,
@@ -113,7 +106,7 @@ def topic_level(text: str, flag: str) -> str:
 
 def check_arguments(args: argparse.Namespace) -> tuple[tuple[str, int], GatewayCapabilities]:
     """Everything the gateway would refuse, before it opens anything."""
-    check_common(args, args.gateway_name)
+    common.check_common(args, args.gateway_name)
     address = mqtt_address(args.mqtt)
     topic_level(args.interface, "--interface")
     if args.major != MAJOR:
@@ -144,7 +137,7 @@ def timing(args: argparse.Namespace) -> Timing:
 def vda5050_command(args: argparse.Namespace) -> int:
     """Run the gateway until SIGINT or SIGTERM; 0 when it stopped cleanly."""
     address, capabilities = check_arguments(args)
-    return run_until_stopped(
+    return common.run_until_stopped(
         args, "vda5050", lambda stop: run_gateway(args, address, capabilities, stop)
     )
 
@@ -162,9 +155,9 @@ def run_gateway(
             "no --capabilities file: the AGVs are listed but have no capability, so none "
             "is chosen for a task"
         )
-    with zenoh_client(args) as session:
+    with common.zenoh_client(args) as session:
         gateway = Vda5050Gateway(
-            robot_side(session, args.cloud, args.gateway_name),
+            common.robot_side(session, args.cloud, args.gateway_name),
             address[0],
             address[1],
             capabilities,
@@ -177,13 +170,11 @@ def run_gateway(
             from robocloud.gateways.vda5050.metrics import serve_metrics
 
             serve_metrics(gateway, *args.metrics)
-        print(
-            f"VDA 5050 gateway: the AGVs of {args.mqtt} ({args.interface}/{args.major}) are "
-            f"robots of {args.cloud} at {', '.join(args.connect)}; Ctrl-C stops",
-            file=sys.stderr,
-            flush=True,
-        )
         try:
-            stop.wait()
+            common.wait_until_stopped(
+                stop,
+                f"VDA 5050 gateway: the AGVs of {args.mqtt} ({args.interface}/{args.major}) "
+                f"are robots of {args.cloud} at {', '.join(args.connect)}",
+            )
         finally:
             gateway.stop()

@@ -25,31 +25,27 @@ e.g. main's ``src``, for a before/after comparison).
 from __future__ import annotations
 
 import argparse
-import contextlib
 import os
-import secrets
 import statistics
-import subprocess
 import sys
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import httpx
 import numpy as np
 
+from benchmarks.one_cloud import GIVE_UP, one_cloud
 from benchmarks.report import Column, Goal, SectionReport, Table, render_text
-from benchmarks.service import _port, post_to_dispatched, terminate_all
+from benchmarks.service import post_to_dispatched
 
 SIZES = (5_000, 20_000, 50_000)
 QUICK_SIZES = (5_000,)
-GIVE_UP = 120.0  # seconds to wait for a fleet to join
 SETTLE = 3.0  # seconds between the join and the CPU window
 CPU_WINDOW = 10.0
 DISPATCHES = 30
 DISPATCH_FOR = 90.0  # seconds at most for the requests of one size
-CLOUD = "cloud-a"
 _TICK = os.sysconf("SC_CLK_TCK")
 
 
@@ -60,67 +56,17 @@ def cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / _TICK
 
 
-@contextlib.contextmanager
-def _processes() -> Iterator[list[subprocess.Popen[bytes]]]:
-    processes: list[subprocess.Popen[bytes]] = []
-    try:
-        yield processes
-    finally:
-        terminate_all(processes, wait=15)
-
-
-def _count(client: httpx.Client) -> int:
-    try:
-        answer = client.get("/healthz", timeout=5)
-    except httpx.TransportError:
-        return -1
-    return int(answer.json()["robots"]) if answer.status_code == 200 else -1
-
-
 def one_size(
     n: int, workdir: Path, *, gateway: bool, src: Path | None, dispatches: int
 ) -> dict[str, Any]:
-    key = secrets.token_urlsafe(12)
-    env = {**os.environ, "ROBOCLOUD_API_KEYS": f"bench={key}"}
-    if src is not None:
-        env["PYTHONPATH"] = f"{src}{os.pathsep}{env.get('PYTHONPATH', '')}"
-    python = [sys.executable, "-m", "robocloud.cli.main"]
-    http, zport = _port(), _port()
-    url, endpoint = f"http://127.0.0.1:{http}", f"tcp/127.0.0.1:{zport}"
-    db = workdir / f"fleet-{n}.db"
-    for leftover in workdir.glob(f"fleet-{n}.db*"):
-        leftover.unlink()
     row: dict[str, Any] = {"robots": n, "mode": "gateway" if gateway else "per-robot"}
-    with _processes() as processes, httpx.Client(base_url=url) as client:
-        log = open(workdir / f"fleet-{n}-iaas.log", "wb")  # noqa: SIM115
-        iaas = subprocess.Popen(
-            [*python, "iaas", "--cloud", CLOUD, "--listen", f"127.0.0.1:{http}",
-             "--zenoh", endpoint, "--store", f"sqlite:///{db}", "--log-level", "warning"],
-            stdout=log, stderr=subprocess.STDOUT, env=env)  # fmt: skip
-        processes.append(iaas)
-        deadline = time.monotonic() + 30
-        while _count(client) < 0:
-            if time.monotonic() > deadline or iaas.poll() is not None:
-                raise RuntimeError(f"the IaaS did not start; see {log.name}")
-            time.sleep(0.1)
-        log = open(workdir / f"fleet-{n}-sim.log", "wb")  # noqa: SIM115
-        started = time.monotonic()
-        sim = subprocess.Popen(
-            [*python, "sim", "--cloud", CLOUD, "--robots", str(n), "--connect", endpoint,
-             "--no-churn", *(["--gateway", "sim"] if gateway else [])],
-            stdout=log, stderr=subprocess.STDOUT, env=env)  # fmt: skip
-        processes.append(sim)
-        seen = 0
-        while time.monotonic() - started < GIVE_UP and sim.poll() is None:
-            seen = max(seen, _count(client))
-            if seen >= n:
-                break
-            time.sleep(0.25)
-        joined = time.monotonic() - started
+    with one_cloud(workdir, f"fleet-{n}", start_within=30, src=src) as cloud:
+        joined = cloud.start_sim(n, *(["--gateway", "sim"] if gateway else []))
+        iaas, sim, seen = cloud.iaas, joined.sim, joined.seen
         row["joined"] = seen
-        row["join_s"] = joined if seen >= n else None
+        row["join_s"] = joined.seconds if seen >= n else None
         if seen < n:
-            print(f"  {n}: only {seen} robots after {joined:.0f} s; measuring anyway",
+            print(f"  {n}: only {seen} robots after {joined.seconds:.0f} s; measuring anyway",
                   file=sys.stderr, flush=True)  # fmt: skip
         time.sleep(SETTLE)
         before = {p.pid: cpu_seconds(p.pid) for p in (iaas, sim)}
@@ -129,10 +75,12 @@ def one_size(
         spent = time.monotonic() - t0
         row["iaas_cpu"] = 100 * (cpu_seconds(iaas.pid) - before[iaas.pid]) / spent
         row["sim_cpu"] = 100 * (cpu_seconds(sim.pid) - before[sim.pid]) / spent
-        row["heard"] = _count(client)
+        row["heard"] = cloud.robots()
         if seen > 0 and dispatches > 0:
             try:
-                got = post_to_dispatched(url, key, dispatches, DISPATCH_FOR, label="fleet bench")
+                got = post_to_dispatched(
+                    cloud.url, cloud.key, dispatches, DISPATCH_FOR, label="fleet bench"
+                )
             except (httpx.HTTPError, AssertionError, KeyError) as error:
                 print(f"  {n}: the dispatches failed: {error}", file=sys.stderr, flush=True)
                 got = {"client": [], "server": [], "sent": dispatches}

@@ -14,9 +14,6 @@ Run alone: ``python -m benchmarks.memory --sizes 10000,100000``.
 from __future__ import annotations
 
 import argparse
-import os
-import secrets
-import subprocess
 import sys
 import time
 from collections.abc import Sequence
@@ -25,9 +22,8 @@ from typing import Any
 
 import httpx
 
-from benchmarks.fleet import CLOUD, GIVE_UP, _count, _processes
+from benchmarks.one_cloud import one_cloud
 from benchmarks.report import Column, Goal, SectionReport, Table, render_text
-from benchmarks.service import _port
 
 SIZES = (10_000, 100_000)
 QUICK_SIZES = (10_000,)
@@ -56,48 +52,17 @@ def _list_all(client: httpx.Client, key: str) -> int:
 
 
 def one_size(n: int, workdir: Path) -> dict[str, Any]:
-    key = secrets.token_urlsafe(12)
-    env = {**os.environ, "ROBOCLOUD_API_KEYS": f"bench={key}"}
-    python = [sys.executable, "-m", "robocloud.cli.main"]
-    http, zport = _port(), _port()
-    url, endpoint = f"http://127.0.0.1:{http}", f"tcp/127.0.0.1:{zport}"
-    db = workdir / f"memory-{n}.db"
-    for leftover in workdir.glob(f"memory-{n}.db*"):
-        leftover.unlink()
     row: dict[str, Any] = {"robots": n}
-    with _processes() as processes, httpx.Client(base_url=url) as client:
-        log = open(workdir / f"memory-{n}-iaas.log", "wb")  # noqa: SIM115
-        iaas = subprocess.Popen(
-            [*python, "iaas", "--cloud", CLOUD, "--listen", f"127.0.0.1:{http}",
-             "--zenoh", endpoint, "--store", f"sqlite:///{db}", "--log-level", "warning"],
-            stdout=log, stderr=subprocess.STDOUT, env=env)  # fmt: skip
-        processes.append(iaas)
-        deadline = time.monotonic() + 60
-        while _count(client) < 0:
-            if time.monotonic() > deadline or iaas.poll() is not None:
-                raise RuntimeError(f"the IaaS did not start; see {log.name}")
-            time.sleep(0.1)
+    with one_cloud(workdir, f"memory-{n}", start_within=60) as cloud:
+        iaas = cloud.iaas
         time.sleep(1.0)
         row["rss_empty_mb"] = rss_bytes(iaas.pid) / 1e6
-        log = open(workdir / f"memory-{n}-sim.log", "wb")  # noqa: SIM115
-        started = time.monotonic()
-        sim = subprocess.Popen(
-            [*python, "sim", "--cloud", CLOUD, "--robots", str(n), "--connect", endpoint,
-             "--no-churn", "--gateway", "sim"],
-            stdout=log, stderr=subprocess.STDOUT, env=env)  # fmt: skip
-        processes.append(sim)
-        seen = 0
-        while time.monotonic() - started < GIVE_UP and sim.poll() is None:
-            seen = max(seen, _count(client))
-            if seen >= n:
-                break
-            time.sleep(0.25)
-        row["joined"] = seen
+        seen = row["joined"] = cloud.start_sim(n, "--gateway", "sim").seen
         time.sleep(SETTLE)
         rss = rss_bytes(iaas.pid)
         row["rss_mb"] = rss / 1e6
         row["per_robot_kb"] = (rss - row["rss_empty_mb"] * 1e6) / max(seen, 1) / 1e3
-        row["listed"] = _list_all(client, key)
+        row["listed"] = _list_all(cloud.client, cloud.key)
         row["rss_listed_mb"] = rss_bytes(iaas.pid) / 1e6
     return row
 

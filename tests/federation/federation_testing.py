@@ -2,22 +2,29 @@
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import socket
 import threading
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Awaitable, Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from datetime import UTC, datetime, timedelta
+from typing import Any
 
-from robocloud.domain import Robot
+from robocloud.domain import Robot, Task
 from robocloud.federation.home import Home
+from robocloud.federation.lending import Aside, never_aside
 from robocloud.federation.memory import MemoryNetwork, MemoryOverlay
 from robocloud.federation.messages import LoanQuery
 from robocloud.federation.overlay import Overlay, Unreachable, ZenohOverlay
 from robocloud.federation.reconcile import LoanReconciler
 from robocloud.federation.view import FederationView
 from robocloud.fleet import MemoryRobotLink
+from robocloud.iaas import lifecycle as lc
+from robocloud.iaas.actor import RequestActor, Shell
+from robocloud.iaas.routes import RobotRoutes
+from robocloud.iaas.selector import SelectorSettings, failed
 from robocloud.storage import MemoryRequestStore, RequestStore
 
 
@@ -145,6 +152,7 @@ def clouds(
     lease_max: float = 30.0,
     origin_deadline: float = 60.0,
     lend_share: float = 1.0,
+    set_aside: dict[str, Callable[[str], Aside | None]] | None = None,
 ) -> tuple[MemoryNetwork, dict[str, Cloud]]:
     """One cloud per name, each with ``robots`` robots (``a-0``, ``a-1`` ... for cloud-a).
 
@@ -168,6 +176,7 @@ def clouds(
             origin_deadline=origin_deadline,
             lend_share=lend_share,
             coalition_of=origin.coalition_robots,
+            set_aside=(set_aside or {}).get(name, never_aside),
             clock=time.utc,
             monotonic=time.mono,
         )
@@ -178,3 +187,48 @@ def clouds(
         )
         out[name] = Cloud(name, store, link, home, overlay, view, origin, reconciler)
     return network, out
+
+
+TASK = {
+    "location": [0.0, 0.0],
+    "actuating": {"grabber": 1},
+    "max_robots": 1,
+    "max_cost": 10.0,
+    "max_time": 10.0,
+}
+
+StoreWrite = Callable[..., Awaitable[Any]]
+
+
+async def _write_now(function: Callable[..., Any], *args: Any) -> Any:
+    return function(*args)
+
+
+def candidates_seen(
+    cloud: Cloud, routes: RobotRoutes | None = None, store_write: StoreWrite = _write_now
+) -> list[tuple[str, ...]]:
+    """The candidates of a new request's selections at ``cloud``, by a request actor
+    whose selector chooses none (the request then fails)."""
+    record, _ = cloud.store.create_request("app", TASK)
+    seen: list[tuple[str, ...]] = []
+
+    async def in_thread(function: Callable[..., Any], *args: Any) -> Any:
+        return await asyncio.to_thread(function, *args)
+
+    async def selector(problem: Any, task: Task) -> Any:
+        seen.append(tuple(problem.ids))
+        return failed(len(problem.ids), 0.0, SelectorSettings(), "none chosen (test)")
+
+    shell = Shell(
+        store=cloud.store,
+        view=cloud.view,
+        selector=selector,
+        rules=lc.Rules(),
+        blocking=in_thread,
+        store_write=store_write,
+        publish=lambda _: None,
+        routes=routes or RobotRoutes(),
+    )
+    life = lc.Life(record.id, Task.model_validate(TASK))
+    asyncio.run(RequestActor(shell, life, record).run(lc.Start()))
+    return seen

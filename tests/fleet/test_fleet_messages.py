@@ -6,8 +6,8 @@ import pytest
 from robocloud.domain import Capability, Robot
 from robocloud.errors import InvalidInput
 from robocloud.fleet import keys
-from robocloud.fleet.behaviour import energy_needed, refuse_assign, refuse_cancel
-from robocloud.fleet.messages import COMMAND, Ack, Assign, Cancel, State
+from robocloud.fleet.behaviour import energy_needed, refuse_assign, refuse_cancel, task_to_report
+from robocloud.fleet.messages import COMMAND, Ack, Assign, Cancel, State, TaskProgress
 
 CAPS = {
     "light": Capability(kind="sensing", time=20.0, cost=1.0),
@@ -138,6 +138,15 @@ def test_a_robot_refuses_what_it_cannot_do() -> None:
     assert refuse_cancel("a-1", "r-1", "r-9") == (
         "robot a-1 is not on request r-9 but on request r-1."
     )
+
+
+def test_a_finished_task_is_reported_while_it_lingers_and_gives_way_to_a_new_one() -> None:
+    done = TaskProgress(request_id="r-1", phase="done", progress=1.0, capabilities=["grabber"])
+    new = TaskProgress(request_id="r-2", phase="travel", progress=0.0, capabilities=["grabber"])
+    assert task_to_report(None, done, finished_until=13.0, now=12.9) == done
+    assert task_to_report(None, done, finished_until=13.0, now=13.0) is None
+    assert task_to_report(new, done, finished_until=13.0, now=12.0) == new
+    assert task_to_report(None, None, finished_until=13.0, now=12.0) is None
 
 
 def test_keys_are_per_robot_and_refuse_bad_chunks() -> None:

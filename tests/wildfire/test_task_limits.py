@@ -85,6 +85,11 @@ def until(check: Callable[[], Any], timeout: float = 5.0) -> Any:
         time.sleep(0.02)
 
 
+def _listings(iaas: FakeIaas) -> int:
+    """How many times ``iaas`` was asked for its newest requests (once a tick)."""
+    return sum(c.method == "GET" and c.url.path == "/v1/requests" for c in iaas.calls)
+
+
 def test_the_server_hands_the_page_the_bounds_of_the_iaas_it_uses(
         iaas_spec: dict[str, Any]) -> None:
     # cloud-a serves no document; cloud-b serves one with its own bound on counts.
@@ -100,6 +105,10 @@ def test_the_server_hands_the_page_the_bounds_of_the_iaas_it_uses(
         limits = until(lambda: client.get("/api/config").json()["limits"])
         assert limits["count"] == {"min": 1, "max": 7}
         assert limits["max_robots"] == {"min": 1, "max": MAX_ROBOTS}
-        time.sleep(0.3)  # several ticks: neither IaaS is asked again
+        # Each tick reads an IaaS's bounds (while the page has none) before its
+        # newest requests: three more reads of those from each IaaS are three
+        # more ticks in which it could have been asked again.
+        listed = {iaas: _listings(iaas) for iaas in (cloud_a, cloud_b)}
+        until(lambda: all(_listings(iaas) >= n + 3 for iaas, n in listed.items()))
     asked = [c for c in cloud_a.calls + cloud_b.calls if c.url.path == "/openapi.json"]
     assert sorted(c.url.host for c in asked) == ["cloud-a.test", "cloud-b.test"]

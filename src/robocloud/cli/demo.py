@@ -1,5 +1,9 @@
 """``make run``: the whole system on this machine, with simulated robots.
 
+Why one long file: ``make run``'s whole life (the processes it plans, their
+start, supervision and restarts, its banner) is one script a reader follows
+from top to bottom; nothing else imports it.
+
 Starts three clouds (``cloud-a``, ``cloud-b``, ``cloud-c``; 1,000 simulated
 robots between them, as in the thesis's scenario), each with its IaaS (HTTP
 API, Zenoh router, SQLite store under ``var/``) and its fleet simulator, the

@@ -23,10 +23,8 @@ from __future__ import annotations
 import argparse
 import contextlib
 import gc
-import json
 import logging
 import sys
-from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -271,6 +269,7 @@ def tune_runtime() -> None:
 def iaas_settings(args: argparse.Namespace) -> Settings:
     """The IaaS's settings from its flags and environment, every one checked; nothing opened."""
     from robocloud.fleet.keys import check_chunk
+    from robocloud.fleet.zenoh_session import check_endpoints
     from robocloud.iaas.config import Settings, default_store_url, parse_api_keys
     from robocloud.storage.opening import check_store_url
 
@@ -351,17 +350,3 @@ def iaas_settings(args: argparse.Namespace) -> Settings:
     )
     return settings
 
-
-def check_endpoints(endpoints: Sequence[str], flag: str) -> None:
-    """Each endpoint in Zenoh's form (``tcp/127.0.0.1:7447``), as Zenoh itself reads it."""
-    import zenoh
-
-    for endpoint in endpoints:
-        try:
-            zenoh.Config().insert_json5("connect/endpoints", json.dumps([endpoint]))
-        except zenoh.ZError:
-            raise InvalidInput(
-                f"{flag} {endpoint!r} is not a Zenoh endpoint; write PROTOCOL/ADDRESS, "
-                f"e.g. {DEFAULT_ZENOH}.",
-                flag,
-            ) from None

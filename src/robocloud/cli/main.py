@@ -253,9 +253,9 @@ def _add_log_level(parser: argparse.ArgumentParser, default: str = "warning") ->
 
 
 def _sim_command(args: argparse.Namespace) -> int:
-    from robocloud.cli.iaas_command import check_endpoints
     from robocloud.federation import security
     from robocloud.fleet.keys import check_chunk
+    from robocloud.fleet.zenoh_session import check_endpoints
     from robocloud.sim.command import sim_command
 
     # Everything the simulator would refuse, before it connects to anything.

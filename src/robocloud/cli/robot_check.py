@@ -80,9 +80,9 @@ def add_robot_check_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def robot_check_command(args: argparse.Namespace) -> int:
-    from robocloud.cli.iaas_command import check_endpoints
     from robocloud.conformance import RobotCheck
     from robocloud.fleet.keys import check_chunk
+    from robocloud.fleet.zenoh_session import check_endpoints
 
     check_chunk(args.cloud, "--cloud")
     check_chunk(args.robot, "--robot")

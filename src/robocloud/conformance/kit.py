@@ -1,5 +1,10 @@
 """A stand-in IaaS that drives one robot through the rules of docs/protocol.md.
 
+Why one long file: ``RobotCheck`` is one run against one robot, and its
+scenarios share that run (the robot's session, its clock, what it has said
+so far) in the order docs/protocol.md tells them; the transport and the rules
+are apart already (``transport.py``, ``rules.py``).
+
 The kit does what an IaaS does, on the same keys and with the same deadline
 (``transport.py``), and checks what the robot answers and publishes against
 the rules (``rules.py``)::

@@ -50,9 +50,12 @@ from robocloud.federation.lending import (
     LEND_SHARE,
     RESERVE_BURST,
     RESERVE_RATE,
+    Aside,
     ReserveRate,
     Undispatched,
+    never_aside,
     over_share,
+    set_aside,
     unfit,
 )
 from robocloud.federation.messages import (
@@ -137,6 +140,7 @@ class Home:
         origin_deadline: float = ORIGIN_DEADLINE,
         lend_share: float = LEND_SHARE,
         reserve_rate: float = RESERVE_RATE,
+        set_aside: Callable[[str], Aside | None] = never_aside,
         coalition_of: Callable[[str], list[str]] = lambda request_id: [],
         monotonic: Callable[[], float] = time.monotonic,
         clock: Callable[[], datetime] = utc_now,
@@ -153,6 +157,9 @@ class Home:
         self.lend_share = lend_share
         self.reserve_rate = ReserveRate(monotonic, reserve_rate, RESERVE_BURST)
         self._undispatched = Undispatched(cloud, lease_max, monotonic)
+        # The robots this cloud's own selections leave out for failing (the
+        # IaaS's RobotRoutes.aside): neither offered nor lent to other clouds.
+        self.set_aside = set_aside
         # The robots working for one of this cloud's requests now (the IaaS's
         # RobotRoutes): what another cloud that lent some is told.
         self.coalition_of = coalition_of
@@ -199,7 +206,8 @@ class Home:
         )
 
     def idle_robots(self, query: IdleQuery) -> bytes:
-        """The ``IdleReply``'s JSON: the idle robots, not held, that pass the query's filter.
+        """The ``IdleReply``'s JSON: the idle robots, not held nor set aside, that pass
+        the query's filter.
 
         Asked for every selection of every other cloud, with hundreds of
         robots in each reply: each robot's JSON is written once and kept
@@ -213,6 +221,7 @@ class Home:
         held = self.store.reservations()
         wanted = set(query.capabilities)
         everyone = self.link.robots()
+        aside = self.set_aside
         robots = [
             r
             for r in everyone
@@ -220,6 +229,7 @@ class Home:
             and r.id not in held
             and r.battery >= query.min_battery
             and (not wanted or not wanted.isdisjoint(r.capabilities))
+            and aside(r.id) is None
         ]
         if len(self._robot_json) > len(everyone) + 1000:  # forgotten robots' JSON goes
             self._robot_json = {}
@@ -415,9 +425,9 @@ class Home:
         """(why the reservation exceeds a lending bound, or None; the lease to grant).
 
         The bounds of ``robocloud.federation.lending``: the rate, the robots'
-        fitness, the origin's share, and ``lease_max`` from the first reservation
-        (``Undispatched``: renewals, other request ids and releases in between
-        included).
+        fitness (a robot set aside here is not lent), the origin's share, and
+        ``lease_max`` from the first reservation (``Undispatched``: renewals,
+        other request ids and releases in between included).
         """
         request_id, robots = reservation.request_id, reservation.robots
         refusal = self.reserve_rate.take(origin)
@@ -429,8 +439,10 @@ class Home:
             # Robots another holds are left to the store, which answers them taken.
             new = [r for r in robots if r not in mine and self._holder(r) is None]
             fleet = self.link.robots()
-            refusal = unfit(new, {r.id: r for r in fleet}, LEND_MIN_BATTERY) or over_share(
-                origin, len(held), len(new), len(fleet), self.lend_share, self.cloud
+            refusal = (
+                unfit(new, {r.id: r for r in fleet}, LEND_MIN_BATTERY)
+                or set_aside(new, self.set_aside, self.cloud)
+                or over_share(origin, len(held), len(new), len(fleet), self.lend_share, self.cloud)
             )
             if refusal is None:
                 ours = [r for r in robots if r in mine or r in new]

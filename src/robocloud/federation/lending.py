@@ -9,7 +9,8 @@ charging ones included. Whatever it asks, the home lends:
   the robot is the origin's again only after ``lease_max`` without a lease
   (``Undispatched``);
 - **only robots that could work now**: idle, heard from, with at least
-  ``LEND_MIN_BATTERY`` percent (``unfit``);
+  ``LEND_MIN_BATTERY`` percent (``unfit``), and not set aside by the home
+  itself (``set_aside``: they failed its own requests too often lately);
 - **at most a share of its fleet to one origin** at a time (``over_share``,
   ``--lend-share``);
 - **at a bounded rate**: ``RESERVE_RATE`` reservations a second per origin,
@@ -24,6 +25,7 @@ from __future__ import annotations
 import math
 import threading
 from collections.abc import Callable, Mapping, Sequence
+from typing import Protocol
 
 from robocloud.domain import Robot
 
@@ -55,6 +57,31 @@ def unfit(robots: Sequence[str], fleet: Mapping[str, Robot], min_battery: float)
         f"only idle robots with at least {min_battery:g}% of battery are lent: "
         f"{'; '.join(reasons)}."
     )
+
+
+class Aside(Protocol):
+    """A robot its home set aside now (``robocloud.iaas.routes.SetAside``): why."""
+
+    @property
+    def why(self) -> str: ...
+
+
+def never_aside(robot: str) -> Aside | None:
+    """No robot is set aside (a home that keeps no record of failures)."""
+    return None
+
+
+def set_aside(robots: Sequence[str], aside: Callable[[str], Aside | None], home: str) -> str | None:
+    """Why some of ``robots`` cannot be lent: ``home`` set them aside, or None.
+
+    A robot that keeps failing the home's own requests is not chosen by them
+    for a while; it is not lent to another cloud's either.
+    """
+    for robot in robots:
+        now = aside(robot)
+        if now is not None:
+            return f"{home} has set {robot} aside and lends it to no one now: {now.why}."
+    return None
 
 
 def over_share(

@@ -133,10 +133,9 @@ class FederationView:
         """``candidates`` if no read of the store is due (``RESERVATIONS_TTL``), else None.
 
         Without the store, this is a filter over the link's columns, cheap
-        enough for the event loop (measured: 0.06 ms for 1,000 robots, 0.3 to
-        0.7 ms for 10,000, 1.5 to 3.2 ms for 50,000), where a thread's hand-off
-        of the GIL cost more than the filter at 1,000. The store is read on a
-        thread: a slow store must not stall the loop.
+        enough for the event loop, where a thread's hand-off of the GIL cost
+        more than the filter (benchmarks/results/design-notes.md, filter-cost).
+        The store is read on a thread: a slow store must not stall the loop.
         """
         reserved = self._reservations_at_hand()
         if reserved is None:
@@ -249,9 +248,8 @@ class FederationView:
         Left out: ``exclude``; robots on their way back home now; and robots
         this cloud borrowed since the question was asked. The answer says they
         were idle, but they have worked since: a robot given back a moment ago
-        may still be stopping, and its home refuses it (measured in the
-        federation benchmark: 13 of 60 back-to-back requests, each canceled once
-        dispatched, had their reservation refused so and selected again).
+        may still be stopping, and its home refuses it, and the selection runs
+        again (benchmarks/results/design-notes.md, borrowed-since).
         """
         view = View([])
         with self._lock:

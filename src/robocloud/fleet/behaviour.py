@@ -1,9 +1,9 @@
 """How a robot answers commands and spends its battery.
 
 The rules behind the Ack of ``robocloud.fleet.messages``, shared by the fleet
-simulator and the in-memory link so both refuse the same commands with the
-same sentences. A real robot may use its own battery model; the reasons it
-refuses should be these.
+simulator, the in-memory link and the gateways so all refuse the same
+commands with the same sentences, and report a finished task alike. A real
+robot may use its own battery model; the reasons it refuses should be these.
 
 Battery model (choice): driving costs ``DRAIN_PER_M`` percent per metre and
 working ``DRAIN_PER_S`` percent per second, whatever the capability.
@@ -15,10 +15,13 @@ import math
 from collections.abc import Mapping, Sequence
 
 from robocloud.domain import Capability
-from robocloud.fleet.messages import Assign
+from robocloud.fleet.messages import Assign, TaskProgress
 
 DRAIN_PER_M = 0.01  # percent of battery per metre driven
 DRAIN_PER_S = 0.02  # percent of battery per second of work
+# Seconds a finished task stays a robot's ``task`` (docs/protocol.md: "for a
+# few seconds"); after that only its ``last_task`` says it.
+FINISHED_LINGER = 3.0
 
 
 def distance(a: Sequence[float], b: Sequence[float]) -> float:
@@ -73,3 +76,13 @@ def refuse_cancel(robot_id: str, current_request: str | None, request_id: str) -
     if current_request is None or current_request == request_id:
         return None
     return f"robot {robot_id} is not on request {request_id} but on request {current_request}."
+
+
+def task_to_report(
+    current: TaskProgress | None, finished: TaskProgress | None, finished_until: float, now: float
+) -> TaskProgress | None:
+    """The ``task`` a robot's state says: the one under way, else the one it
+    finished while that lingers (until ``finished_until``), else none."""
+    if current is None and finished is not None and now < finished_until:
+        return finished
+    return current

@@ -23,6 +23,7 @@ import zenoh
 
 from robocloud.errors import InvalidInput
 
+EXAMPLE_ENDPOINT = "tcp/127.0.0.1:7447"
 # Link protocols that carry the overlay encrypted when TLS is on (Zenoh's QUIC
 # reads the same transport/link/tls settings).
 _ENCRYPTED = ("tls/", "quic/")
@@ -195,3 +196,16 @@ def wait_for_liveliness(session: zenoh.Session, key_expr: str, timeout: float) -
         return seen.wait(timeout)
     finally:
         subscriber.undeclare()  # type: ignore[no-untyped-call]
+
+
+def check_endpoints(endpoints: Sequence[str], flag: str) -> None:
+    """Each endpoint in Zenoh's form (``tcp/127.0.0.1:7447``), as Zenoh itself reads it."""
+    for endpoint in endpoints:
+        try:
+            zenoh.Config().insert_json5("connect/endpoints", json.dumps([endpoint]))
+        except zenoh.ZError:
+            raise InvalidInput(
+                f"{flag} {endpoint!r} is not a Zenoh endpoint; write PROTOCOL/ADDRESS, "
+                f"e.g. {EXAMPLE_ENDPOINT}.",
+                flag,
+            ) from None

@@ -11,7 +11,7 @@ Departures from the thesis (docs/model.md, "The choice"):
   (Algorithm 3). ``balanced`` keeps the thesis's equal weights; ``time``
   weighs (T, C, N) 0.6/0.2/0.2 and ``cost`` 0.2/0.6/0.2. With equal weights a
   "time critical" request often got the slowest coalition on the front
-  (measured in issue 9: 5 of 8 tries).
+  (benchmarks/results/design-notes.md, choice-weights).
 - Each criterion is the V-shape criterion (PROMETHEE type 3) whose preference
   threshold p_j is the criterion's range over the front, not the usual
   criterion: on a front where every member trades time for cost at one size,

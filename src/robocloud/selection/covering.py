@@ -1,5 +1,10 @@
 """Cheapest covers by capability class: the search step of the exact optimizer.
 
+Why one long file: the proof below is what makes the search correct (the
+bound from the duals, the enumeration's budget), and the solver, the branch
+and bound and the Lagrangian enumeration it speaks of share each node's
+state; kept apart, a rule would stand away from its proof.
+
 A candidate's *class* is the set of required capabilities it brings (its
 U_i). Within a class robots differ only in t_i and c_i, so once the robots
 allowed are fixed (in the exact optimizer: every robot no slower than a time
@@ -28,9 +33,10 @@ F_m(x) - pi_m x lies above its least value over the node's range, pi_m being
 the class's price (the multipliers of what it brings, less mu). Every term
 after LB is non-negative, so *all* x whose cost is within a budget of LB are
 found by enumerating the class counts whose deviations fit in that budget.
-Where the relaxation is integral (almost always, measured in benchmarks/)
-the budget is docs/model.md's tolerance: the enumeration then lists every tie,
-which the tie rule (the smallest sorted id list) needs. Only where that list
+Where the relaxation is integral (almost always:
+benchmarks/results/design-notes.md, integral-relaxation) the budget is
+docs/model.md's tolerance: the enumeration then lists every tie, which the
+tie rule (the smallest sorted id list) needs. Only where that list
 would be long does the node branch. The bound is computed here from the
 duals, so a slightly inexact dual from the solver weakens a bound and never
 makes one wrong.

@@ -138,7 +138,8 @@ def capability_classes(uses: BoolArray) -> tuple[BoolArray, IntArray]:
 
     Rows of up to 62 capabilities are packed into integers first (the first
     capability the most significant bit, so the integers sort as the rows
-    do): sorting integers is some forty times faster than sorting rows.
+    do): sorting integers is much faster than sorting rows
+    (benchmarks/results/design-notes.md, packed-classes).
     """
     k = uses.shape[1]
     if k > 62:

@@ -41,12 +41,10 @@ DEFAULT_BUDGET_S = 2.0
 def resolve(optimizer: OptimizerChoice) -> OptimizerName:
     """What ``auto`` runs: the exact optimizer, always.
 
-    Measured in benchmarks/ (coalitions of 5 to 60 robots among 100 to
-    10,000 candidates) it takes about as long as MOPSO (less on most sizes,
-    up to about 1.4 times as long where the front has a hundred points) and
-    its front is the true one, where MOPSO's reaches 0.85 to 1.0 of its
-    hypervolume; when the budget cuts it, its partial front comes with a
-    certified bound, which MOPSO cannot give.
+    It takes about as long as MOPSO and its front is the true one, which
+    MOPSO's only approaches (benchmarks/results/design-notes.md, auto-exact);
+    when the budget cuts it, its partial front comes with a certified bound,
+    which MOPSO cannot give.
     """
     return "mopso" if optimizer == "mopso" else "exact"
 
@@ -128,8 +126,9 @@ def select_problem(
 
     ``ranking=False``: the result's ``ranking`` is left empty, and with the
     exact optimizer (which does not use it) the ranking is not computed. The
-    IaaS keeps no ranking, and ranking 8,000 candidates took a quarter of the
-    selection; the Pareto front and the choice are the same.
+    IaaS keeps no ranking, and ranking took a large share of the selection
+    (benchmarks/results/design-notes.md, no-ranking); the Pareto front and
+    the choice are the same.
     """
     _check(optimizer, pool_size, budget_s)
     started = time.perf_counter()

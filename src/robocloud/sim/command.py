@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import signal
 import sys
 import threading
 from collections.abc import Sequence
@@ -23,6 +22,7 @@ from robocloud.federation import security
 from robocloud.fleet import keys
 from robocloud.sim.fleet import run_simulator
 from robocloud.sim.metrics import metrics_address
+from robocloud.stopping import stop_on_signals
 
 
 def add_sim_arguments(parser: argparse.ArgumentParser) -> None:
@@ -85,16 +85,8 @@ def sim_command(args: argparse.Namespace) -> int:
 
     Errors a user can cause are raised as ``RoboCloudError`` for the CLI to map.
     """
-    stop = threading.Event()
-    previous = {}
-    if threading.current_thread() is threading.main_thread():
-        for signum in (signal.SIGINT, signal.SIGTERM):
-            previous[signum] = signal.signal(signum, lambda *_: stop.set())
-    try:
+    with stop_on_signals() as stop:
         return _run(args, stop)
-    finally:
-        for signum, handler in previous.items():
-            signal.signal(signum, handler)
 
 
 def _run(args: argparse.Namespace, stop: threading.Event) -> int:

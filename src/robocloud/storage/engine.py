@@ -158,7 +158,8 @@ class Database:
             # In WAL mode NORMAL still survives a crash of the process (kill -9):
             # a commit is in the WAL before it returns; only a power loss or an
             # OS crash may take back the last commits. FULL would add an fsync
-            # (about 3 ms here) to every state change.
+            # to every state change (benchmarks/results/design-notes.md,
+            # synchronous-normal).
             cursor.execute("PRAGMA synchronous = NORMAL")
             cursor.execute("PRAGMA foreign_keys = ON")
             cursor.close()

@@ -1,7 +1,7 @@
 """The statements every request runs, on SQLite's own cursor: ``SqliteRows``.
 
-``SqlRequestStore`` speaks SQLAlchemy Core, which spends about 0.1 ms of CPU
-on each statement it runs, three to four times what sqlite3 itself takes
+``SqlRequestStore`` speaks SQLAlchemy Core, which spends several times the
+CPU that sqlite3 itself takes on each statement it runs
 (benchmarks/results/design-notes.md, sqlite-cursor). Every request
 runs the same few statements five or six times in its life: its row and its
 history, a state change, a new request, its robots' holds. On SQLite these

@@ -1,5 +1,9 @@
 """What the page shows live, kept by the wildfire server: no I/O, fed by ``feed.py``.
 
+Why one long file: ``LiveModel`` is one object whose every step (ingest,
+publish, snapshot) keeps the same tables of robots, clouds, requests and
+alerts consistent with each other; the helpers below it serve it alone.
+
 The model holds the fleet as last heard (every robot with the wall time it
 last reported), the clouds and their health, the requests being followed and
 the alerts they raised. ``publish()`` turns what changed since the previous

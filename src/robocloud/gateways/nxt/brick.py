@@ -1,5 +1,9 @@
 """One NXT brick as a robot: what it reports, the task it is on, the movement under way.
 
+Why one long file: the brick's state machine is one class, ``Brick``: each
+answer, silence and command moves the same task through its movements; the
+telegrams, the odometry, the battery and the link are apart already.
+
 No I/O here: the driver (``driver.py``) feeds a ``Brick`` what the brick
 answers, under the gateway's lock, asks it which movement to start and whether
 to stop the motors, and carries that out over the link.
@@ -35,7 +39,7 @@ import math
 from dataclasses import dataclass, field, replace
 
 from robocloud.domain import RobotStatus
-from robocloud.fleet.behaviour import refuse_cancel
+from robocloud.fleet.behaviour import FINISHED_LINGER, refuse_cancel, task_to_report
 from robocloud.fleet.messages import Assign, Phase, State, TaskProgress
 from robocloud.gateways.nxt import battery as batteries
 from robocloud.gateways.nxt.bricks import BrickConfig, Search, Step
@@ -45,7 +49,6 @@ from robocloud.gateways.nxt.telegrams import OUTPUT_PORTS, RUN_IDLE, OutputState
 STALL_AFTER = 1.0  # seconds a driven motor may stand still
 SILENT_AFTER = 2.0  # seconds without an answer: the brick is offline, its task failed
 FAULT_HOLD = 10.0  # seconds offline after a fault, then idle again (the next task may work)
-LINGER = 3.0  # seconds a finished task stays in ``task``
 AT_TARGET = 0.02  # metres: nearer than this, no travel
 MAX_LEG = 1000.0  # metres of one straight movement
 ARRIVE_WITHIN = 0.05  # metres: farther from the location after driving, travel again
@@ -511,7 +514,7 @@ class Brick:
             capabilities=list(job.capabilities),
             reason=reason,
         )
-        self.finished_until = now + LINGER
+        self.finished_until = now + FINISHED_LINGER
         self.job = None
         self.movement = None
         self.dirty = True
@@ -538,9 +541,8 @@ class Brick:
         if battery is None:
             return None
         self.seq += 1
-        task = self.job.task() if self.job is not None else None
-        if task is None and self.finished is not None and now < self.finished_until:
-            task = self.finished
+        current = self.job.task() if self.job is not None else None
+        task = task_to_report(current, self.finished, self.finished_until, now)
         return State(
             id=self.robot_id,
             cloud=cloud,

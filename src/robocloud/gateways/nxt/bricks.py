@@ -42,19 +42,16 @@ Every fault is refused with a sentence naming its field (exit code 2).
 
 from __future__ import annotations
 
-import json
-from pathlib import Path
 from typing import Annotated, Literal
 
-import pydantic
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from robocloud.domain import Capability
 from robocloud.domain.robot import Coordinate, Name, NonNegative, Speed
-from robocloud.errors import InvalidInput, NotFound, describe_validation_errors
+from robocloud.errors import InvalidInput
 from robocloud.fleet import keys
+from robocloud.gateways.json_file import read_json_file, validated
 
-MAX_FILE_BYTES = 1024 * 1024
 MAX_BRICKS = 64  # one Bluetooth adapter links up to 7; a few adapters, or stand-ins
 
 MotorPort = Literal["A", "B", "C"]
@@ -218,11 +215,7 @@ class BricksFile(BaseModel):
 
 def parse_bricks(data: object, source: str) -> BricksFile:
     """``data`` (the file's JSON) checked: InvalidInput naming the field at fault."""
-    try:
-        bricks = BricksFile.model_validate(data)
-    except pydantic.ValidationError as error:
-        described = describe_validation_errors(error.errors())
-        raise InvalidInput(f"{source}: {described.message}", "--bricks") from None
+    bricks = validated(BricksFile, data, source, "--bricks")
     for robot in bricks.robots:
         try:
             keys.check_chunk(robot, "robot")
@@ -238,25 +231,4 @@ def parse_bricks(data: object, source: str) -> BricksFile:
 
 
 def load_bricks(path: str) -> BricksFile:
-    file = Path(path)
-    try:
-        size = file.stat().st_size
-        if size > MAX_FILE_BYTES:
-            raise InvalidInput(
-                f"{path} is {size} bytes; a bricks file is at most {MAX_FILE_BYTES}.", "--bricks"
-            )
-        text = file.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise NotFound(f"{path}: no such file.", path) from None
-    except UnicodeDecodeError:
-        raise InvalidInput(f"{path} is not UTF-8 text.", "--bricks") from None
-    except OSError as error:
-        raise InvalidInput(f"cannot read {path}: {error.strerror or error}.", "--bricks") from None
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as error:
-        raise InvalidInput(
-            f"{path} is not valid JSON: {error.msg} at line {error.lineno} column {error.colno}.",
-            "--bricks",
-        ) from None
-    return parse_bricks(data, path)
+    return parse_bricks(read_json_file(path, "--bricks", "bricks file"), path)

@@ -10,5 +10,6 @@
     link.py          one robot's own Zenoh session: what it reads, the action's requests
     gateway.py       the robots together, the cloud's commands, the states out
     command.py       the command line
-    standin.py       a stand-in Nav2 robot (its messages in standin_cdr.py, with pycdr2)
+    standin.py       a stand-in Nav2 robot's command (``python -m ...ros2.standin``)
+    standin_robot.py the stand-in robot itself (its messages in standin_cdr.py, with pycdr2)
 """

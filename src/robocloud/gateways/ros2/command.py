@@ -12,27 +12,17 @@ the robots file read, before anything is opened.
 from __future__ import annotations
 
 import argparse
-import logging
-import signal
-import sys
 import threading
-from typing import TYPE_CHECKING
 
-from robocloud.federation import security
+from robocloud.gateways import command_common as common
 from robocloud.gateways.ros2.robots_file import RobotsFile, load_robots
-
-if TYPE_CHECKING:
-    from robocloud.gateways.zenoh_side import CommandHandler, RobotSide
 
 
 def add_ros2_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--cloud", required=True, help="the cloud the robots join, e.g. cloud-a")
-    parser.add_argument(
-        "--connect",
-        required=True,
-        action="append",
-        metavar="ZENOH_ENDPOINT",
-        help="the IaaS's Zenoh router, e.g. tcp/127.0.0.1:7447 (repeat for fallbacks)",
+    common.add_common_arguments(
+        parser,
+        "the robots",
+        "the cloud's router (default 10); robots are waited for as long as it takes",
     )
     parser.add_argument(
         "--robots",
@@ -54,38 +44,14 @@ def add_ros2_arguments(parser: argparse.ArgumentParser) -> None:
         help="speak on each robot's own keys (a state publisher and a command queryable "
         "each) instead of as a fleet gateway: what `robocloud robot-check` reads",
     )
-    parser.add_argument(
-        "--connect-timeout",
-        type=float,
-        default=10.0,
-        metavar="SECONDS",
-        help="how long to wait for the cloud's router (default 10); robots are waited for "
-        "as long as it takes",
-    )
-    parser.add_argument(
-        "--log-level",
-        default="info",
-        choices=("debug", "info", "warning", "error"),
-        help="default info",
-    )
-    security.add_arguments(parser, router=False)
 
 
 def check_arguments(args: argparse.Namespace) -> RobotsFile:
     """Everything the gateway would refuse, before it opens anything."""
-    from robocloud.cli.iaas_command import check_endpoints
-    from robocloud.errors import InvalidInput
     from robocloud.fleet.keys import check_chunk
+    from robocloud.fleet.zenoh_session import check_endpoints
 
-    check_chunk(args.cloud, "--cloud")
-    check_chunk(args.gateway_name, "--gateway-name")
-    check_endpoints(args.connect, "--connect")
-    if not 0 <= args.connect_timeout <= 3600:  # also refuses nan
-        raise InvalidInput(
-            f"--connect-timeout must be 0 to 3600 s, not {args.connect_timeout}.",
-            "--connect-timeout",
-        )
-    security.from_arguments(args)
+    common.check_common(args, args.gateway_name)
     robots = load_robots(args.robots)
     for robot, entry in robots.robots.items():
         check_chunk(robot, "robot id")
@@ -96,50 +62,22 @@ def check_arguments(args: argparse.Namespace) -> RobotsFile:
 def ros2_command(args: argparse.Namespace) -> int:
     """Run the gateway until SIGINT or SIGTERM; 0 when it stopped cleanly."""
     robots = check_arguments(args)
-    logging.basicConfig(
-        level=args.log_level.upper(),
-        format=f"%(asctime)s {args.cloud}-ros2 %(levelname)s %(name)s: %(message)s",
-    )
-    stop = threading.Event()
-    previous = {}
-    if threading.current_thread() is threading.main_thread():
-        for signum in (signal.SIGINT, signal.SIGTERM):
-            previous[signum] = signal.signal(signum, lambda *_: stop.set())
-    try:
-        run_gateway(args, robots, stop)
-    finally:
-        for signum, handler in previous.items():
-            signal.signal(signum, handler)
-    return 0
+    return common.run_until_stopped(args, "ros2", lambda stop: run_gateway(args, robots, stop))
 
 
 def run_gateway(args: argparse.Namespace, robots: RobotsFile, stop: threading.Event) -> None:
-    from robocloud.fleet.zenoh_session import open_client
     from robocloud.gateways.ros2.gateway import Ros2Gateway
-    from robocloud.gateways.zenoh_side import ZenohFleet, ZenohRobots
 
-    session = open_client(
-        args.connect, timeout=args.connect_timeout, security=security.from_arguments(args)
-    )
-    try:
-
-        def fleet(on_command: CommandHandler) -> RobotSide:
-            if args.robot_keys:
-                return ZenohRobots(session, args.cloud, on_command)
-            return ZenohFleet(session, args.cloud, args.gateway_name, on_command)
-
-        gateway = Ros2Gateway(fleet, robots)
+    with common.zenoh_client(args) as session:
+        name = None if args.robot_keys else args.gateway_name
+        gateway = Ros2Gateway(common.robot_side(session, args.cloud, name), robots)
         gateway.start()
-        print(
-            f"ROS 2 gateway: {len(robots.robots)} robots of {args.robots} are robots of "
-            f"{args.cloud} at {', '.join(args.connect)} "
-            f"({'robot keys' if args.robot_keys else 'fleet ' + args.gateway_name}); Ctrl-C stops",
-            file=sys.stderr,
-            flush=True,
-        )
         try:
-            stop.wait()
+            common.wait_until_stopped(
+                stop,
+                f"ROS 2 gateway: {len(robots.robots)} robots of {args.robots} are robots of "
+                f"{args.cloud} at {', '.join(args.connect)} "
+                f"({'robot keys' if args.robot_keys else 'fleet ' + args.gateway_name})",
+            )
         finally:
             gateway.stop()
-    finally:
-        session.close()  # type: ignore[no-untyped-call]

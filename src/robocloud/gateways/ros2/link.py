@@ -1,5 +1,10 @@
 """One robot's Zenoh session: its router (rmw_zenoh) or its bridge, and nothing else.
 
+Why one long file: ``RobotLink`` is one session's life (its tokens, topics
+and the three action services), all on that session and under one lock; the
+robot's state (``robot.py``), the messages (``cdr.py``) and the names
+(``naming.py``) are apart already.
+
 The gateway opens one client session per robot to the robot's own endpoint,
 so robots stay apart and ROS traffic never reaches the cloud's router. A
 ``RobotLink`` subscribes to what the gateway reads (``/tf``, the battery,

@@ -30,12 +30,11 @@ from collections import deque
 from dataclasses import dataclass, field
 
 from robocloud.domain import RobotStatus
-from robocloud.fleet.behaviour import refuse_cancel
+from robocloud.fleet.behaviour import FINISHED_LINGER, refuse_cancel, task_to_report
 from robocloud.fleet.messages import Assign, Phase, State, TaskProgress
 from robocloud.gateways.ros2 import interfaces as ros
 from robocloud.gateways.ros2.robots_file import RobotEntry
 
-LINGER = 3.0  # seconds a finished task stays in the robot's task
 STALE_AFTER = 5.0  # seconds without tf or battery before the robot counts as offline
 # Seconds an aborted goal waits for the status that shows a preempting goal: Nav2 aborts
 # a preempted goal, and its result and its status may come in either order.
@@ -265,7 +264,7 @@ class RosRobot:
             capabilities=list(job.capabilities),
             reason=why[:300] if why is not None else None,
         )
-        self.finished_until = now + LINGER
+        self.finished_until = now + FINISHED_LINGER
         self.job = None
         self.dirty = True
         if why is not None:
@@ -382,9 +381,8 @@ class RosRobot:
         if here is None or self.battery is None:
             return None
         self.seq += 1
-        task = self.job.task() if self.job is not None else None
-        if task is None and self.finished is not None and now < self.finished_until:
-            task = self.finished
+        current = self.job.task() if self.job is not None else None
+        task = task_to_report(current, self.finished, self.finished_until, now)
         return State(
             id=self.robot_id,
             cloud=cloud,

@@ -20,19 +20,16 @@ frame: cloud = (x, y) + R(yaw) * map.
 
 from __future__ import annotations
 
-import json
 import math
-from pathlib import Path
 from typing import Annotated, Literal
 
-import pydantic
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from robocloud.domain import Capability
 from robocloud.domain.robot import Name, NonNegative, Speed
-from robocloud.errors import InvalidInput, NotFound, describe_validation_errors
+from robocloud.errors import InvalidInput
+from robocloud.gateways.json_file import read_json_file, validated
 
-MAX_FILE_BYTES = 1024 * 1024
 MAX_ROBOTS = 1000
 _STRICT = ConfigDict(extra="forbid", frozen=True)
 Coordinate = Annotated[float, Field(ge=-1e7, le=1e7, allow_inf_nan=False)]
@@ -106,11 +103,7 @@ class RobotsFile(BaseModel):
 
 
 def parse_robots(data: object, source: str) -> RobotsFile:
-    try:
-        parsed = RobotsFile.model_validate(data)
-    except pydantic.ValidationError as error:
-        described = describe_validation_errors(error.errors())
-        raise InvalidInput(f"{source}: {described.message}", "--robots") from None
+    parsed = validated(RobotsFile, data, source, "--robots")
     endpoints: dict[str, str] = {}
     for robot, entry in parsed.robots.items():
         other = endpoints.setdefault(entry.endpoint, robot)
@@ -125,25 +118,4 @@ def parse_robots(data: object, source: str) -> RobotsFile:
 
 def load_robots(path: str) -> RobotsFile:
     """The file at ``path``, checked; each fault is an error with a sentence."""
-    file = Path(path)
-    try:
-        size = file.stat().st_size
-        if size > MAX_FILE_BYTES:
-            raise InvalidInput(
-                f"{path} is {size} bytes; a robots file is at most {MAX_FILE_BYTES}.", "--robots"
-            )
-        text = file.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise NotFound(f"{path}: no such file.", path) from None
-    except UnicodeDecodeError:
-        raise InvalidInput(f"{path} is not UTF-8 text.", "--robots") from None
-    except OSError as error:
-        raise InvalidInput(f"cannot read {path}: {error.strerror or error}.", "--robots") from None
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as error:
-        raise InvalidInput(
-            f"{path} is not valid JSON: {error.msg} at line {error.lineno} column {error.colno}.",
-            "--robots",
-        ) from None
-    return parse_robots(data, path)
+    return parse_robots(read_json_file(path, "--robots", "robots file"), path)

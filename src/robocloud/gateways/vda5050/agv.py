@@ -1,5 +1,10 @@
 """One AGV: its VDA 5050 messages read as a robot's State, and its robocloud order followed.
 
+Why one long file: the AGV's state machine is one class, ``Agv``: every
+message and tick of the AGV (its order, its acceptance, the reconciliation
+after a restart, its liveliness) reads and moves the same state, so the
+checks below are rules of that one class.
+
 No I/O here: the gateway feeds an ``Agv`` what the broker says, under its lock,
 and asks it for the robot's state and for the order of an assign.
 
@@ -61,6 +66,7 @@ from typing import TypeVar
 
 from robocloud.domain import Capability, RobotStatus
 from robocloud.domain.robot import MAX_COORDINATE, MAX_SPEED, MIN_SPEED, NAME_PATTERN
+from robocloud.fleet.behaviour import FINISHED_LINGER, task_to_report
 from robocloud.fleet.messages import Assign, Phase, State, TaskProgress
 from robocloud.gateways.vda5050.capabilities import GatewayCapabilities
 from robocloud.gateways.vda5050.messages import (
@@ -75,7 +81,6 @@ from robocloud.gateways.vda5050.messages import (
 T = TypeVar("T")
 CANCEL_AGAIN = 2.0  # seconds between two cancelOrders of one order the AGV keeps at
 REMEMBERED = 64  # orders sent, and cancels, remembered per AGV (the newest)
-LINGER = 3.0  # seconds a finished task stays in the robot's task
 UNDER_WAY = frozenset({"WAITING", "INITIALIZING", "RUNNING", "PAUSED"})
 AUTOMATIC = frozenset({"AUTOMATIC", "SEMIAUTOMATIC"})
 BROKEN = frozenset({"OFFLINE", "CONNECTIONBROKEN"})
@@ -416,7 +421,7 @@ class Agv:
             capabilities=list(job.capabilities),
             reason=reason if phase == "failed" else None,
         )
-        self.finished_until = now + LINGER
+        self.finished_until = now + FINISHED_LINGER
         self.finished_order = job.order_id
         self.job = None
         self.failure = why
@@ -562,9 +567,8 @@ class Agv:
         if self.position is None or self.vda is None:
             return None
         self.seq += 1
-        task = self.job.task() if self.job is not None else None
-        if task is None and self.finished is not None and now < self.finished_until:
-            task = self.finished
+        current = self.job.task() if self.job is not None else None
+        task = task_to_report(current, self.finished, self.finished_until, now)
         return State(
             id=self.robot_id,
             cloud=cloud,

@@ -18,18 +18,13 @@ an AGV whose battery is below ``min_battery`` percent refuses tasks.
 
 from __future__ import annotations
 
-import json
-from pathlib import Path
 from typing import Annotated, Any, Literal
 
-import pydantic
 from pydantic import BaseModel, ConfigDict, Field
 
 from robocloud.domain import Capability
 from robocloud.domain.robot import Name, NonNegative, Speed
-from robocloud.errors import InvalidInput, NotFound, describe_validation_errors
-
-MAX_FILE_BYTES = 1024 * 1024
+from robocloud.gateways.json_file import read_json_file, validated
 
 
 class ActionParameter(BaseModel):
@@ -73,32 +68,5 @@ def load_capabilities(path: str | None) -> GatewayCapabilities:
     """The file at ``path``, checked; none at all without a path (no AGV can then be chosen)."""
     if path is None:
         return GatewayCapabilities()
-    file = Path(path)
-    try:
-        size = file.stat().st_size
-        if size > MAX_FILE_BYTES:
-            raise InvalidInput(
-                f"{path} is {size} bytes; a capabilities file is at most {MAX_FILE_BYTES}.",
-                "--capabilities",
-            )
-        text = file.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise NotFound(f"{path}: no such file.", path) from None
-    except UnicodeDecodeError:
-        raise InvalidInput(f"{path} is not UTF-8 text.", "--capabilities") from None
-    except OSError as error:
-        raise InvalidInput(
-            f"cannot read {path}: {error.strerror or error}.", "--capabilities"
-        ) from None
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as error:
-        raise InvalidInput(
-            f"{path} is not valid JSON: {error.msg} at line {error.lineno} column {error.colno}.",
-            "--capabilities",
-        ) from None
-    try:
-        return GatewayCapabilities.model_validate(data)
-    except pydantic.ValidationError as error:
-        described = describe_validation_errors(error.errors())
-        raise InvalidInput(f"{path}: {described.message}", "--capabilities") from None
+    data = read_json_file(path, "--capabilities", "capabilities file")
+    return validated(GatewayCapabilities, data, path, "--capabilities")

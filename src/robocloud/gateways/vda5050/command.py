@@ -15,33 +15,20 @@ from __future__ import annotations
 
 import argparse
 import logging
-import signal
-import sys
 import threading
-from typing import TYPE_CHECKING
 
 from robocloud.errors import InvalidInput
-from robocloud.federation import security
+from robocloud.gateways import command_common as common
 from robocloud.gateways.vda5050.agv import Timing
 from robocloud.gateways.vda5050.capabilities import GatewayCapabilities, load_capabilities
 from robocloud.gateways.vda5050.messages import MAJOR
 from robocloud.sim.metrics import metrics_address
 
-if TYPE_CHECKING:
-    from robocloud.gateways.zenoh_side import CommandHandler
-
 DEFAULT_MQTT = "127.0.0.1:1883"
 
 
 def add_vda5050_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--cloud", required=True, help="the cloud the AGVs join, e.g. cloud-a")
-    parser.add_argument(
-        "--connect",
-        required=True,
-        action="append",
-        metavar="ZENOH_ENDPOINT",
-        help="the IaaS's Zenoh router, e.g. tcp/127.0.0.1:7447 (repeat for fallbacks)",
-    )
+    common.add_common_arguments(parser, "the AGVs", "the router and the broker (default 10)")
     parser.add_argument(
         "--mqtt",
         default=DEFAULT_MQTT,
@@ -59,19 +46,6 @@ def add_vda5050_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="FILE",
         help="JSON: capability -> VDA 5050 action, kind, time, cost (without it no AGV "
         "has a capability, so none is chosen)",
-    )
-    parser.add_argument(
-        "--connect-timeout",
-        type=float,
-        default=10.0,
-        metavar="SECONDS",
-        help="how long to wait for the router and the broker (default 10)",
-    )
-    parser.add_argument(
-        "--log-level",
-        default="info",
-        choices=("debug", "info", "warning", "error"),
-        help="default info; debug also shows the traceback of an error",
     )
     parser.add_argument(
         "--gateway-name",
@@ -113,7 +87,6 @@ def add_vda5050_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="HOST:PORT",
         help="serve Prometheus metrics at http://HOST:PORT/metrics (docs/metrics.md)",
     )
-    security.add_arguments(parser, router=False)
 
 
 def mqtt_address(text: str) -> tuple[str, int]:
@@ -133,24 +106,13 @@ def topic_level(text: str, flag: str) -> str:
 
 def check_arguments(args: argparse.Namespace) -> tuple[tuple[str, int], GatewayCapabilities]:
     """Everything the gateway would refuse, before it opens anything."""
-    from robocloud.cli.iaas_command import check_endpoints
-    from robocloud.fleet.keys import check_chunk
-
-    check_chunk(args.cloud, "--cloud")
-    if args.gateway_name is not None:
-        check_chunk(args.gateway_name, "--gateway-name")
-    check_endpoints(args.connect, "--connect")
+    common.check_common(args, args.gateway_name)
     address = mqtt_address(args.mqtt)
     topic_level(args.interface, "--interface")
     if args.major != MAJOR:
         raise InvalidInput(
             f"--major {args.major!r} is not spoken: the gateway speaks VDA 5050 2.x ({MAJOR}).",
             "--major",
-        )
-    if not 0 <= args.connect_timeout <= 3600:  # also refuses nan
-        raise InvalidInput(
-            f"--connect-timeout must be 0 to 3600 s, not {args.connect_timeout}.",
-            "--connect-timeout",
         )
     for flag, value, top in (
         ("--accept-within", args.accept_within, 600.0),
@@ -161,7 +123,6 @@ def check_arguments(args: argparse.Namespace) -> tuple[tuple[str, int], GatewayC
             raise InvalidInput(
                 f"{flag} must be more than 0 and at most {top:g} s, not {value}.", flag
             )
-    security.from_arguments(args)
     return address, load_capabilities(args.capabilities)
 
 
@@ -176,21 +137,9 @@ def timing(args: argparse.Namespace) -> Timing:
 def vda5050_command(args: argparse.Namespace) -> int:
     """Run the gateway until SIGINT or SIGTERM; 0 when it stopped cleanly."""
     address, capabilities = check_arguments(args)
-    logging.basicConfig(
-        level=args.log_level.upper(),
-        format=f"%(asctime)s {args.cloud}-vda5050 %(levelname)s %(name)s: %(message)s",
+    return common.run_until_stopped(
+        args, "vda5050", lambda stop: run_gateway(args, address, capabilities, stop)
     )
-    stop = threading.Event()
-    previous = {}
-    if threading.current_thread() is threading.main_thread():
-        for signum in (signal.SIGINT, signal.SIGTERM):
-            previous[signum] = signal.signal(signum, lambda *_: stop.set())
-    try:
-        run_gateway(args, address, capabilities, stop)
-    finally:
-        for signum, handler in previous.items():
-            signal.signal(signum, handler)
-    return 0
 
 
 def run_gateway(
@@ -199,28 +148,16 @@ def run_gateway(
     capabilities: GatewayCapabilities,
     stop: threading.Event,
 ) -> None:
-    from robocloud.fleet.zenoh_session import open_client
     from robocloud.gateways.vda5050.gateway import Vda5050Gateway
-    from robocloud.gateways.zenoh_side import RobotSide, ZenohFleet, ZenohRobots
 
     if not capabilities.capabilities:
         logging.getLogger(__name__).warning(
             "no --capabilities file: the AGVs are listed but have no capability, so none "
             "is chosen for a task"
         )
-    session = open_client(
-        args.connect, timeout=args.connect_timeout, security=security.from_arguments(args)
-    )
-    try:
-        name = args.gateway_name
-
-        def robot_side(on_command: CommandHandler) -> RobotSide:
-            if name is None:
-                return ZenohRobots(session, args.cloud, on_command)
-            return ZenohFleet(session, args.cloud, name, on_command)
-
+    with common.zenoh_client(args) as session:
         gateway = Vda5050Gateway(
-            robot_side,
+            common.robot_side(session, args.cloud, args.gateway_name),
             address[0],
             address[1],
             capabilities,
@@ -233,15 +170,11 @@ def run_gateway(
             from robocloud.gateways.vda5050.metrics import serve_metrics
 
             serve_metrics(gateway, *args.metrics)
-        print(
-            f"VDA 5050 gateway: the AGVs of {args.mqtt} ({args.interface}/{args.major}) are "
-            f"robots of {args.cloud} at {', '.join(args.connect)}; Ctrl-C stops",
-            file=sys.stderr,
-            flush=True,
-        )
         try:
-            stop.wait()
+            common.wait_until_stopped(
+                stop,
+                f"VDA 5050 gateway: the AGVs of {args.mqtt} ({args.interface}/{args.major}) "
+                f"are robots of {args.cloud} at {', '.join(args.connect)}",
+            )
         finally:
             gateway.stop()
-    finally:
-        session.close()  # type: ignore[no-untyped-call]

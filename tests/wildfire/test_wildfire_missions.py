@@ -148,7 +148,8 @@ def test_the_events_of_a_mission_are_relayed_until_it_is_final() -> None:
         app = create_wildfire_app(WildfireSettings(iaas=(served.url,), api_key=KEY, tick=0.2,
                                                    poll_timeout=1.0, timeout=2.0))
         with TestClient(app) as client:
-            until(lambda: len(client.get("/api/robots").json()) == 2)
+            # A bound, not a claim: a loaded machine reads the first fleet late.
+            until(lambda: len(client.get("/api/robots").json()) == 2, timeout=30)
             mission = client.post("/api/missions", json=MISSION).json()
             seen: list[dict[str, Any]] = []
             with client.stream("GET", f"/api/missions/{mission['id']}/events") as stream:
@@ -170,7 +171,7 @@ def test_the_events_of_a_mission_are_relayed_until_it_is_final() -> None:
             assert [m["state"] for m in seen] == ["underway", "underway", "completed"]
             assert seen[1]["plan"]["tasks"][0]["state"] in ("travel", "waiting", "work")
             assert seen[2]["progress"] == 1.0
-            until(lambda: served.streams == 0)
+            until(lambda: served.streams == 0, timeout=30)
             assert client.get("/api/missions/mis-none/events").json() == {
                 "detail": "there is no mission 'mis-none'."}
     finally:

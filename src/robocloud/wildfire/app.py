@@ -4,7 +4,8 @@ The browser calls ``/api/...`` here; the server calls the IaaSs with the
 application's key, so the key never reaches the page. Routes stay thin: the
 live state comes from :class:`~robocloud.wildfire.live.LiveModel` (kept by
 :class:`~robocloud.wildfire.feed.LiveFeed`), calls on the operator's behalf go
-through :class:`~robocloud.wildfire.iaas_pool.IaasPool`, and errors become
+through :class:`~robocloud.wildfire.iaas_pool.IaasPool` (a task or a mission
+checked first by ``checks.py``), and errors become
 ``{"detail": "a sentence"}`` in one place (:func:`_install_error_handlers`).
 
 ::
@@ -45,12 +46,10 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import json
 import logging
-import math
 import re
 import time
-from collections.abc import AsyncIterator, Callable, Mapping
+from collections.abc import AsyncIterator, Callable
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -65,6 +64,7 @@ from starlette.middleware.gzip import GZipMiddleware
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from robocloud.domain.request import IDEMPOTENCY_KEY_PATTERN, IDEMPOTENCY_KEY_RULE
+from robocloud.wildfire.checks import check_mission, check_task
 from robocloud.wildfire.config import WildfireSettings
 from robocloud.wildfire.feed import LiveFeed, TooManyPages, event
 from robocloud.wildfire.iaas_client import IaasBusy, IaasError, IaasUnreachable, MissionEvents
@@ -247,7 +247,7 @@ def _api() -> APIRouter:
         model: Model,
         idempotency_key: Annotated[str | None, Header()] = None,
     ) -> JSONResponse:
-        record, endpoint = await _send(request, idempotency_key, "request", _check_task,
+        record, endpoint = await _send(request, idempotency_key, "request", check_task,
                                        pool.create_request)
         model.ingest_request(record, endpoint.cloud, time.time())
         return JSONResponse(_with_home(record, endpoint), status_code=202)
@@ -285,7 +285,7 @@ def _api() -> APIRouter:
         pool: Pool,
         idempotency_key: Annotated[str | None, Header()] = None,
     ) -> JSONResponse:
-        record, endpoint = await _send(request, idempotency_key, "mission", _check_mission,
+        record, endpoint = await _send(request, idempotency_key, "mission", check_mission,
                                        pool.create_mission)
         return JSONResponse(_with_home(record, endpoint), status_code=202)
 
@@ -383,63 +383,6 @@ async def _relay(events: MissionEvents, streams: set[object]) -> AsyncIterator[b
         with contextlib.suppress(asyncio.CancelledError):
             await reader
         await events.aclose()
-
-
-def _check_task(body: bytes, model: LiveModel) -> None:
-    """What this application knows better than the IaaS: its forest and its fleet.
-
-    Anything else (a missing field, a wrong type) is left to the IaaS, whose
-    sentence comes back as it is.
-    """
-    task = _json(body, "a task")
-    if isinstance(task, Mapping):
-        _check_place(task.get("location"), "location", "fire", model)
-        _check_needs(task, "", model)
-
-
-def _check_mission(body: bytes, model: LiveModel) -> None:
-    """A mission's fires and end place, each as a task's (``_check_task``)."""
-    mission = _json(body, "a mission")
-    if not isinstance(mission, Mapping):
-        return
-    tasks = mission.get("tasks")
-    for i, task in enumerate(tasks if isinstance(tasks, list) else []):
-        if isinstance(task, Mapping):
-            _check_place(task.get("location"), f"tasks[{i}].location", "fire", model)
-            _check_needs(task, f"tasks[{i}].", model)
-    _check_place(mission.get("end"), "end", "end place", model)
-
-
-def _json(body: bytes, what: str) -> Any:
-    try:
-        return json.loads(body)
-    except ValueError:
-        raise IaasError(422, f"the body is not JSON: send {what} as a JSON object.") from None
-
-
-def _check_place(location: Any, field: str, what: str, model: LiveModel) -> None:
-    if (isinstance(location, list) and len(location) == 2
-            and all(isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
-                    for v in location)):
-        refusal = model.settings.forest.refusal(float(location[0]), float(location[1]), what)
-        if refusal:
-            raise IaasError(422, f"{field}: {refusal}")
-
-
-def _check_needs(task: Mapping[str, Any], prefix: str, model: LiveModel) -> None:
-    known = model.known_capabilities()
-    if not known:
-        return  # the fleet is not heard yet: the IaaS decides
-    for kind in ("actuating", "sensing"):
-        wanted = task.get(kind)
-        if not isinstance(wanted, Mapping):
-            continue
-        for name in wanted:
-            if name not in known:
-                offered = ", ".join(sorted(known)[:20])
-                raise IaasError(422, f"{prefix}{kind}.{str(name)[:60]}: no robot of the "
-                                     f"federation has the capability {str(name)[:60]!r}; the "
-                                     f"fleet has {offered}.")
 
 
 async def _bounded_body(request: Request, what: str) -> bytes:

@@ -151,6 +151,7 @@ class RequestService:
             metrics=self.metrics,
             selection_turn=lambda: self._selection_turns,
         )
+        self.rules = self._shell.rules  # the watchdog's rule, shared with the missions
         self.admission = Admission(
             settings.max_waiting, settings.busy_after, self.metrics, self._shell.mono
         )

@@ -1,0 +1,154 @@
+"""The missions' HTTP routes (MISSION_API.md): thin, they call ``MissionService``.
+
+``mission_routes`` is handed the app's own dependencies (the application an
+API key belongs to, the bearer scheme, the declared answers), so this module
+does not import ``robocloud.iaas.app``, which includes it. No ``from
+__future__ import annotations`` here: FastAPI reads the handlers' annotations,
+which name that dependency, a local of ``mission_routes``.
+"""
+
+from collections.abc import AsyncIterator, Awaitable, Callable
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Body, Depends, Header, Path, Query, Request, Response
+from fastapi.sse import EventSourceResponse, ServerSentEvent
+
+from robocloud.domain.mission_ids import MISSION_ID
+from robocloud.domain.request import IDEMPOTENCY_KEY_PATTERN, IDEMPOTENCY_KEY_RULE
+from robocloud.iaas.missions.book import MISSION_STATES
+from robocloud.iaas.missions.models import MissionList, MissionPublic, mission_json, read_body
+from robocloud.iaas.missions.service import MissionService
+
+MissionId = Annotated[str, Path(description="a mission's id, e.g. mis-abcdefgh2345")]
+
+
+async def missions_of(request: Request) -> MissionService:
+    service: MissionService = request.app.state.cloud.missions
+    return service
+
+
+Missions = Annotated[MissionService, Depends(missions_of)]
+
+
+def mission_routes(
+    application_of: Callable[..., Awaitable[str]],
+    secured: list[Any],
+    answers: Callable[..., dict[int | str, Any]],
+) -> APIRouter:
+    """The /v1/missions routes; ``application_of``: the app's dependency for the caller."""
+    router = APIRouter()
+
+    @router.post(
+        "/v1/missions",
+        dependencies=secured,
+        status_code=202,
+        response_model=MissionPublic,
+        tags=["missions"],
+        operation_id="create_mission",
+        responses=answers(401, 413, 422),
+    )
+    async def create_mission(
+        missions: Missions,
+        application: Annotated[str, Depends(application_of)],
+        response: Response,
+        body: Annotated[
+            Any,
+            Body(
+                description="docs/model.md's mission (tasks, precedence, end, priority, "
+                "max_time, min_battery, execution), plus label and time_limit (planning "
+                "seconds, 0.5 to 60, default 5)"
+            ),
+        ],
+        idempotency_key: Annotated[
+            str | None,
+            Header(
+                max_length=200,
+                pattern=IDEMPOTENCY_KEY_PATTERN,
+                description="a retry with the same key and body returns the same mission; "
+                f"{IDEMPOTENCY_KEY_RULE}",
+            ),
+        ] = None,
+    ) -> MissionPublic:
+        """Send a mission: planned over the federation's robots, then carried out."""
+        record = await missions.submit(application, read_body(body), idempotency_key)
+        response.headers["Location"] = f"/v1/missions/{record.id}"
+        return mission_json(record)
+
+    @router.get(
+        "/v1/missions",
+        dependencies=secured,
+        response_model=MissionList,
+        tags=["missions"],
+        operation_id="list_missions",
+        responses=answers(401, 422),
+    )
+    async def list_missions(
+        missions: Missions,
+        application: Annotated[str, Depends(application_of)],
+        state: Annotated[
+            str | None,
+            Query(
+                pattern="^(" + "|".join(MISSION_STATES) + ")$",
+                description="only missions in this state",
+            ),
+        ] = None,
+        limit: Annotated[int, Query(ge=1, le=200)] = 50,
+        before: Annotated[
+            str | None,
+            Query(pattern=MISSION_ID.pattern, description="the `next` cursor of the last page"),
+        ] = None,
+    ) -> MissionList:
+        records, cursor = missions.book.list(application, state, limit, before)
+        return MissionList(missions=[mission_json(r) for r in records], next=cursor)
+
+    @router.get(
+        "/v1/missions/{mission_id}",
+        dependencies=secured,
+        response_model=MissionPublic,
+        tags=["missions"],
+        operation_id="get_mission",
+        responses=answers(401, 404),
+    )
+    async def get_mission(
+        mission_id: MissionId,
+        missions: Missions,
+        application: Annotated[str, Depends(application_of)],
+    ) -> MissionPublic:
+        return mission_json(missions.get(application, mission_id))
+
+    @router.delete(
+        "/v1/missions/{mission_id}",
+        dependencies=secured,
+        response_model=MissionPublic,
+        tags=["missions"],
+        operation_id="cancel_mission",
+        responses=answers(401, 404),
+    )
+    async def cancel_mission(
+        mission_id: MissionId,
+        missions: Missions,
+        application: Annotated[str, Depends(application_of)],
+    ) -> MissionPublic:
+        """Cancel a mission (again: harmless): every robot of it is told to stop, and released."""
+        return mission_json(await missions.cancel(application, mission_id))
+
+    @router.get(
+        "/v1/missions/{mission_id}/events",
+        dependencies=secured,
+        response_class=EventSourceResponse,
+        tags=["missions"],
+        operation_id="mission_events",
+        responses=answers(401, 404),
+    )
+    async def mission_events(
+        mission_id: MissionId,
+        missions: Missions,
+        application: Annotated[str, Depends(application_of)],
+    ) -> AsyncIterator[ServerSentEvent]:
+        """Server-sent events: the mission now, then after each change, until it is final."""
+        missions.get(application, mission_id)  # 404 before the stream starts
+        async for record in missions.events(application, mission_id):
+            data = mission_json(record).model_dump(mode="json")
+            yield ServerSentEvent(event="mission", data=data)
+
+    return router

@@ -72,6 +72,7 @@ class RobotRun:
     sent: int = 0  # legs sent so far (the current one is ``legs[sent - 1]``)
     sent_wall: float | None = None  # when the current leg's assign was sent
     heard_wall: float = 0.0  # its latest report
+    joined_wall: float = 0.0  # when the mission took it
     position: tuple[float, float] = (0.0, 0.0)
 
     @property

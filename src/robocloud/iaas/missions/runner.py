@@ -257,19 +257,28 @@ class MissionRunner:
         if leg is None:
             await self._release(member, "its last task is done")
             return
+        now = self.ports.wall()
+        if not member.joined_wall:
+            member.joined_wall = now
+        state = self.ports.state_of(member.id)
+        if state is None and now - member.joined_wall < PROTOCOL_WAIT:
+            member.state = "assigned"
+            return  # a borrowed robot not heard yet: its protocol is not known (tick)
+        member.holds = state is not None and state.holds
         if not member.holds and not self._due(member, leg.task, leg.start):
             member.state = "assigned"
             return  # a robot that cannot wait on command goes later (tick)
         await self._send(member)
 
     def _due(self, member: RobotRun, number: int, start: float) -> bool:
-        """Whether a robot that works on arrival should leave now for task ``number``."""
+        """Whether a robot that works on arrival should leave now for task ``number``.
+
+        A borrowed robot goes at once: its home lends it only briefly until it
+        is dispatched (``--lease-max``)."""
         record = self.record
         assert record.started_at is not None
-        if member.cloud != self.ports.cloud and self.ports.state_of(member.id) is None:
-            # A borrowed robot not heard yet: its protocol is not known, and its
-            # home lends it only briefly until dispatched: it goes now.
-            return self.ports.wall() - record.updated_at > PROTOCOL_WAIT
+        if member.cloud != self.ports.cloud:
+            return True
         state = self.ports.state_of(member.id)
         position = (
             (state.position[0], state.position[1]) if state is not None else member.position
@@ -328,14 +337,22 @@ class MissionRunner:
             member.state = "travel"
         elif task.phase == "waiting":
             member.state = "waiting"
+            if run.state == "work":  # started meanwhile (a member that works on arrival)
+                await self._start_members(run, [member])
+                return
             if run.state in ("pending", "travel"):
                 run.state = "waiting"
             await self._maybe_start(run)
         elif task.phase == "work":
             member.state = "working"
             if run.state in NOT_STARTED:
+                # A robot of protocol 1.0 or 1.1 works on arrival: the others start too.
                 run.state = "work"
                 run.started_wall = now
+                others = [record_member for r in run.robots
+                          if (record_member := self.record.robots.get(r)) is not None
+                          and record_member is not member]
+                await self._start_members(run, others)
         elif task.phase == "done":
             run.done_by.add(member.id)
             await self._task_maybe_done(run)
@@ -359,13 +376,20 @@ class MissionRunner:
             return
         run.state = "work"
         run.started_wall = self.ports.wall()
+        await self._start_members(run, members)
+
+    async def _start_members(self, run: TaskRun, members: list[RobotRun]) -> None:
+        """Send ``start`` to the members that hold and are sent to this task (there or not)."""
+        record = self.record
         wire = run.wire(record.id)
-        acks = await asyncio.gather(
-            *(self.ports.start(m.id, m.cloud, wire) for m in members if m.holds)
-        )
-        for ack in acks:
+        told = [
+            m for m in members
+            if m.holds and m.current is not None and m.current.task == run.number
+            and m.state not in ("released", "failed")
+        ]
+        acks = await asyncio.gather(*(self.ports.start(m.id, m.cloud, wire) for m in told))
+        for member, ack in zip(told, acks, strict=True):
             if not ack.ok:
-                member = record.robots[ack.robot]
                 await self._robot_failed(member, f"it refused to start task {run.id}: {ack.error}")
 
     async def _task_maybe_done(self, run: TaskRun) -> None:
@@ -515,5 +539,5 @@ def robot_of(record: Any) -> Robot:
 
     if isinstance(record, Robot):
         return record
-    return Robot.model_validate(msgspec.to_builtins(record))
+    return Robot.model_validate(msgspec.to_builtins(record), strict=False)
 

@@ -312,6 +312,14 @@ class Home:
         taken = self.store.lend(origin, reservation.request_id, reservation.robots, lease)
         if taken:
             return ReserveReply(taken=taken)
+        kept = self.kept()
+        taken = [r for r in reservation.robots if r in kept]
+        if taken:
+            # A mission of ours took one between the check and the loan: it
+            # reads the store after taking, so one of the two always sees the other.
+            why = "a mission of this cloud took it meanwhile"
+            self.store.end_loans(origin, reservation.request_id, reservation.robots, why)
+            return ReserveReply(taken=taken)
         self._undispatched.record(origin, reservation.robots, lease)
         self._lent_now(origin, reservation.request_id, reservation.robots, lease)
         commands = reservation.dispatch

@@ -41,7 +41,7 @@ from robocloud.iaas.config import Settings
 from robocloud.iaas.elsewhere import Elsewhere
 from robocloud.iaas.metrics import IaasMetrics
 from robocloud.iaas.missions.book import MissionBook
-from robocloud.iaas.missions.service import MissionService
+from robocloud.iaas.missions.service import MissionService, Origins
 from robocloud.iaas.routes import RobotRoutes
 from robocloud.iaas.service import RequestService
 from robocloud.storage import RequestStore, open_store
@@ -141,7 +141,7 @@ async def build_cloud(
             service.blocking,
             service.clock,
         )
-        reconciler = LoanReconciler(home, overlay, service, view.lenders)
+        reconciler = LoanReconciler(home, overlay, Origins(service, missions), view.lenders)
         metrics.observe_states(settings.cloud, service.robot_statuses, service.active_states)
         await service.start()
         stack.push_async_callback(service.stop)

@@ -131,6 +131,16 @@ class MissionRunner:
             await self._end("canceled", "canceled by the application", reason=None)
             self._publish()
 
+    async def lost(self, robot_id: str, why: str) -> None:
+        """The mission lost a robot by another's word (its home ended the loan)."""
+        async with self._turn:
+            member = self.record.robots.get(robot_id)
+            if is_final(self.record.state) or member is None:
+                return
+            if member.state not in ("released", "failed"):
+                await self._robot_failed(member, why)
+                self._publish()
+
     async def fail_inside(self, reason: str) -> None:
         """Something of this IaaS broke while carrying the mission out: it fails, robots stop."""
         async with self._turn:

@@ -22,6 +22,7 @@ from typing import Any, TypeVar
 from robocloud.domain import Robot, Task, is_final
 from robocloud.domain.mission_ids import MISSION_ID, holder_of
 from robocloud.errors import InvalidInput, NotFound, RoboCloudError
+from robocloud.federation.reconcile import OriginStatus
 from robocloud.federation.view import FederationView
 from robocloud.fleet.messages import Ack, Assign, State
 from robocloud.iaas.feed import Feed
@@ -177,6 +178,19 @@ class MissionService:
 
         return self.feed.follow(mission_id, now)
 
+    def loan_ended(self, mission_id: str, robot: str, home: str, why: str) -> None:
+        """A robot's home ended its loan to one of our missions on its own (any thread)."""
+        if self._loop is not None:
+            self._loop.call_soon_threadsafe(self._loan_ended, mission_id, robot, home, why)
+
+    def _loan_ended(self, mission_id: str, robot: str, home: str, why: str) -> None:
+        runner = self._runners.get(mission_id)
+        if runner is not None:
+            self._spawn(
+                runner.lost(robot, f"its home {home} ended the loan: {why}"),
+                f"the loan of {robot} to mission {mission_id}",
+            )
+
     # -- robots' reports ------------------------------------------------------------
 
     def _state_from_thread(self, state: State) -> None:
@@ -279,3 +293,16 @@ class MissionService:
                 await self.blocking(self.view.link.cancel, robot, request_id)
             else:  # at the home: the loan is the mission's, the robot told its task's end
                 await self.blocking(self.view.cancel, robot, cloud, mission_id)
+
+
+class Origins:
+    """Who learns that a home ended a loan while this cloud was away: the mission the
+    robot was lent for, or the request (``robocloud.federation.reconcile.OriginStatus``)."""
+
+    def __init__(self, requests: OriginStatus, missions: MissionService) -> None:
+        self.requests = requests
+        self.missions = missions
+
+    def loan_ended(self, request_id: str, robot: str, home: str, why: str) -> None:
+        to = self.missions if MISSION_ID.fullmatch(request_id) else self.requests
+        to.loan_ended(request_id, robot, home, why)

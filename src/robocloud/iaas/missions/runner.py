@@ -201,10 +201,16 @@ class MissionRunner:
             record.started_at = now
         now = ports.wall()
         holds = {r: self._holds(r) for r in chosen - set(ours)}
+        for member in record.robots.values():
+            del member.legs[member.sent :]  # the legs not sent are this plan's now
         adopt(
             problem, plan, part, numbers, robots, record.tasks, record.robots, offset, holds,
             busy_for,
         )
+        for robot_id in chosen - set(ours):  # (again) the mission's
+            member = record.robots[robot_id]
+            if member.state == "released":
+                member.state, member.joined_wall = "assigned", 0.0
         for robot_id in set(ours) - chosen:  # re-planned out of the mission
             member = record.robots[robot_id]
             if member.next_leg is None and member.state not in ("working",):
@@ -310,7 +316,7 @@ class MissionRunner:
         command = Assign(
             request_id=wire,
             location=list(run.location),
-            capabilities=run.uses.get(member.id) or ["none"],
+            capabilities=run.uses[member.id],
             execution=record.mission.execution,
             hold=member.holds,
         )
@@ -507,6 +513,10 @@ class MissionRunner:
                 await self.ports.stop(record.id, member.id, member.cloud, run.wire(record.id))
                 member.sent -= 1  # that leg is planned again
                 member.state = "assigned"
+                if member.cloud != self.ports.cloud:
+                    # Stopping it at its home ended its loan: it is given back, and
+                    # borrowed again if the new plan takes it.
+                    await self._release(member, "given back for a re-plan")
         for run in record.tasks.values():
             if run.state in NOT_STARTED:
                 run.state, run.progress = "pending", 0.0

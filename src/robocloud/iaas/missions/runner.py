@@ -9,6 +9,11 @@ A robot of protocol 1.0 or 1.1 cannot wait on command: its assign is sent
 late enough that it arrives at the task's planned start, and it works on
 arrival (docs/protocol.md, "Missions").
 
+A re-plan takes the planner's construction, in this process (milliseconds:
+the robots wait for it, and every second they wait idle their owners may take
+them); the first plan takes the whole planner within the mission's
+``time_limit``.
+
 The watchdog is the requests' rule (``robocloud.iaas.lifecycle.Rules``): a
 robot silent for ``offline_after``, or past its expected arrival (while it
 travels) or finish (while it works) plus the tolerance, or that reports its
@@ -53,7 +58,7 @@ from robocloud.planning.problem import Problem
 
 log = logging.getLogger(__name__)
 
-ATTEMPTS = 4  # plans per (re)planning when chosen robots are taken meanwhile
+ATTEMPTS = 8  # plans per (re)planning when chosen robots are taken meanwhile
 PROTOCOL_WAIT = 2.0  # wall seconds to hear a borrowed robot's protocol before its first assign
 
 
@@ -67,6 +72,7 @@ class Ports:
     # The federation's free robots for a mission (minus ``exclude``), and a plan.
     gather: Callable[[Mission, set[str]], Awaitable[list[Robot]]]
     plan: Callable[[Problem, float], Awaitable[Plan]]
+    quick: Callable[[Problem], Plan]  # a re-plan's: robots wait for it
     # Hold robots (robot, cloud) for the mission: [] or those taken meanwhile.
     hold: Callable[[str, list[tuple[str, str]]], Awaitable[list[str]]]
     release: Callable[[str, str, str, str], Awaitable[None]]  # mission, robot, cloud, why
@@ -172,7 +178,7 @@ class MissionRunner:
             except InvalidInput as error:
                 await self._end("rejected" if not replan else "failed", error.message)
                 return
-            plan = await ports.plan(problem, record.time_limit)
+            plan = ports.quick(problem) if replan else await ports.plan(problem, record.time_limit)
             if plan.schedule is None:
                 why_not = plan.reason or "no plan serves every task."
                 if replan:
@@ -189,6 +195,10 @@ class MissionRunner:
             refused = await ports.hold(record.id, new) if new else []
             if refused:
                 taken |= set(refused)
+                record.note(
+                    ports.wall(),
+                    f"{', '.join(sorted(refused)[:10])} taken meanwhile: planning again",
+                )
                 continue
             break
         else:

@@ -29,6 +29,7 @@ from robocloud.iaas.feed import Feed
 from robocloud.iaas.lifecycle import Rules
 from robocloud.iaas.missions.book import MissionBook, MissionRecord
 from robocloud.iaas.missions.models import MissionCreate
+from robocloud.iaas.missions.plans import quick_plan
 from robocloud.iaas.missions.runner import MissionRunner, Ports, robot_of
 from robocloud.iaas.routes import RobotRoutes
 from robocloud.planning.mission import MAX_MISSION_ROBOTS, Mission, MissionInput, to_problem
@@ -74,6 +75,7 @@ class MissionService:
             wall=wall,
             gather=self._gather,
             plan=self._plan,
+            quick=quick_plan,
             hold=self._hold,
             release=self._release,
             route=self._route,
@@ -249,14 +251,24 @@ class MissionService:
         taken = self.routes.take(mission_id, local)
         if taken:
             return taken
-        lent = set(await self.blocking(self.store.reservations))
-        taken = [r for r in local if r in lent]  # lent to another cloud just now
+        in_store = set(await self.blocking(self.store.reservations))
+        taken = [r for r in local if r in in_store]  # lent to another cloud just now
         remote = [(r, c) for r, c in robots if c != self.cloud]
-        if not taken and remote:
-            taken = await self.blocking(self.view.reserve, mission_id, remote)
+        lent: list[tuple[str, str]] = []
+        for pair in [] if taken else remote:
+            # One by one: a home refuses a whole reservation for one robot that
+            # went busy meanwhile, without saying which (a mission's robots are
+            # many, and the plan took seconds).
+            refused = await self.blocking(self.view.reserve, mission_id, [pair])
+            if refused:
+                taken += refused
+            else:
+                lent.append(pair)
         if taken:
             for robot in local:
                 self.routes.unfollow(mission_id, robot)
+            if lent:
+                await self.blocking(self.view.release, mission_id, lent, "the plan changed")
             return taken
         for robot, cloud in remote:
             self.routes.follow(mission_id, robot)

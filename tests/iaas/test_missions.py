@@ -70,7 +70,7 @@ class World:
             return function(*args)
 
         self.service = MissionService(
-            "cloud-a", MissionBook(), store, view, self.routes,
+            "cloud-a", MissionBook(store), store, view, self.routes,
             Rules(offline_after=offline_after, overrun_min=5.0), blocking, self.clock,
             plan=construction,
         )
@@ -242,3 +242,29 @@ def test_bad_missions_are_refused_with_a_sentence() -> None:
         read_body({"tasks": []})
     with pytest.raises(InvalidInput, match="body"):
         read_body([1, 2])
+
+
+def test_a_restarted_iaas_ends_the_missions_it_left_unfinished() -> None:
+    async def scenario() -> None:
+        world = World([state(0, 10.0), state(1, 40.0), state(2, 60.0)])
+        service = world.service
+        runner = await world.begin(TWO_FIRES)
+        service._publish(runner.record)
+        await service._save_dirty()  # what the ticks do
+        stored = service.store.mission(runner.id)
+        assert stored is not None and stored.state == "underway"
+        # Another process on the same store starts: the mission is not resumed.
+        again = World([])
+        again.service.store = service.store
+        again.service.book.store = service.store
+        await again.service.start()
+        try:
+            shown = await again.service.get("app", runner.id)
+            assert shown.state == "failed" and "restarted" in (shown.reason or "")
+            assert again.service.book.status(runner.id) == (True, True)
+            listed, _ = await again.service.page("app", None, 10, None)
+            assert [m.id for m in listed] == [runner.id]
+        finally:
+            await again.service.stop()
+
+    asyncio.run(scenario())

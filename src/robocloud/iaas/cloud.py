@@ -99,7 +99,7 @@ async def build_cloud(
             )
             stack.callback(link.close)
         routes = RobotRoutes(settings.set_aside_for)
-        book = MissionBook()
+        book = MissionBook(store)
         home = Home(
             settings.cloud,
             store,

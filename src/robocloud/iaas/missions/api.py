@@ -16,7 +16,7 @@ from fastapi.sse import EventSourceResponse, ServerSentEvent
 from robocloud.domain.mission_ids import MISSION_ID
 from robocloud.domain.request import IDEMPOTENCY_KEY_PATTERN, IDEMPOTENCY_KEY_RULE
 from robocloud.iaas.missions.book import MISSION_STATES
-from robocloud.iaas.missions.models import MissionList, MissionPublic, mission_json, read_body
+from robocloud.iaas.missions.models import MissionList, MissionPublic, read_body
 from robocloud.iaas.missions.service import MissionService
 
 MissionId = Annotated[str, Path(description="a mission's id, e.g. mis-abcdefgh2345")]
@@ -70,9 +70,9 @@ def mission_routes(
         ] = None,
     ) -> MissionPublic:
         """Send a mission: planned over the federation's robots, then carried out."""
-        record = await missions.submit(application, read_body(body), idempotency_key)
-        response.headers["Location"] = f"/v1/missions/{record.id}"
-        return mission_json(record)
+        mission = await missions.submit(application, read_body(body), idempotency_key)
+        response.headers["Location"] = f"/v1/missions/{mission.id}"
+        return mission
 
     @router.get(
         "/v1/missions",
@@ -98,8 +98,8 @@ def mission_routes(
             Query(pattern=MISSION_ID.pattern, description="the `next` cursor of the last page"),
         ] = None,
     ) -> MissionList:
-        records, cursor = missions.book.list(application, state, limit, before)
-        return MissionList(missions=[mission_json(r) for r in records], next=cursor)
+        shown, cursor = await missions.page(application, state, limit, before)
+        return MissionList(missions=shown, next=cursor)
 
     @router.get(
         "/v1/missions/{mission_id}",
@@ -114,7 +114,7 @@ def mission_routes(
         missions: Missions,
         application: Annotated[str, Depends(application_of)],
     ) -> MissionPublic:
-        return mission_json(missions.get(application, mission_id))
+        return await missions.get(application, mission_id)
 
     @router.delete(
         "/v1/missions/{mission_id}",
@@ -130,7 +130,7 @@ def mission_routes(
         application: Annotated[str, Depends(application_of)],
     ) -> MissionPublic:
         """Cancel a mission (again: harmless): every robot of it is told to stop, and released."""
-        return mission_json(await missions.cancel(application, mission_id))
+        return await missions.cancel(application, mission_id)
 
     @router.get(
         "/v1/missions/{mission_id}/events",
@@ -146,9 +146,8 @@ def mission_routes(
         application: Annotated[str, Depends(application_of)],
     ) -> AsyncIterator[ServerSentEvent]:
         """Server-sent events: the mission now, then after each change, until it is final."""
-        missions.get(application, mission_id)  # 404 before the stream starts
-        async for record in missions.events(application, mission_id):
-            data = mission_json(record).model_dump(mode="json")
-            yield ServerSentEvent(event="mission", data=data)
+        await missions.get(application, mission_id)  # 404 before the stream starts
+        async for mission in missions.events(application, mission_id):
+            yield ServerSentEvent(event="mission", data=mission.model_dump(mode="json"))
 
     return router

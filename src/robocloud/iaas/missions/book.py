@@ -1,9 +1,12 @@
-"""The book of missions: every mission of this IaaS, in memory (``MissionBook``).
+"""The book of missions (``MissionBook``): the missions this IaaS runs, live, in memory.
 
-Missions are not in the request store: a restarted IaaS forgets them (its
-robots, still at a mission's task, are then strays and told to stop, as any
-robot working for a request the IaaS does not run). docs/architecture.md says
-so. At most ``MAX_MISSIONS`` are kept; past it the oldest finished ones go.
+Every mission is also in the request store (``RequestStore.save_mission``:
+its latest JSON, written at each change of its state or history), which is
+what is read for a mission this process does not run (finished, or from
+before a restart). A restarted IaaS does not resume a mission: it ends the
+unfinished ones as failed, and their robots, still at a task, are stopped
+as strays (robots working for a request the IaaS does not run).
+At most ``MAX_MISSIONS`` are kept live; past it the oldest finished ones go.
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ from robocloud.domain import is_final
 from robocloud.domain.mission_ids import MISSION_ID, new_mission_id
 from robocloud.iaas.missions.plans import RobotRun, TaskRun
 from robocloud.planning.mission import Mission
+from robocloud.storage import RequestStore
 
 MAX_MISSIONS = 10_000
 MISSION_STATES = ("planning", "underway", "completed", "rejected", "failed", "canceled")
@@ -51,7 +55,8 @@ class MissionRecord:
 
 
 class MissionBook:
-    def __init__(self) -> None:
+    def __init__(self, store: RequestStore) -> None:
+        self.store = store
         self._lock = threading.Lock()  # Home asks from the overlay's threads
         self._missions: OrderedDict[str, MissionRecord] = OrderedDict()  # oldest first
         self._keys: dict[tuple[str, str], str] = {}
@@ -96,26 +101,16 @@ class MissionBook:
             return None
         return record
 
-    def list(
-        self, application: str, state: str | None, limit: int, before: str | None
-    ) -> tuple[list[MissionRecord], str | None]:
-        """The application's missions, newest first, after the cursor ``before``."""
-        with self._lock:
-            newest = list(reversed(self._missions.values()))
-        if before is not None:
-            ids = [r.id for r in newest]
-            newest = newest[ids.index(before) + 1 :] if before in ids else []
-        mine = [r for r in newest if r.application == application and state in (None, r.state)]
-        page = mine[:limit]
-        return page, (page[-1].id if len(mine) > limit else None)
-
     def status(self, mission_id: str) -> tuple[bool, bool] | None:
         """For a mission id: (known, final), what another cloud that lent robots asks;
         None for any other id (a request's)."""
         if not MISSION_ID.fullmatch(mission_id):
             return None
         record = self._missions.get(mission_id)
-        return (False, False) if record is None else (True, is_final(record.state))
+        if record is not None:
+            return True, is_final(record.state)
+        stored = self.store.mission(mission_id)
+        return (False, False) if stored is None else (True, is_final(stored.state))
 
     def _prune(self) -> None:
         """Past ``MAX_MISSIONS``, forget the oldest finished missions (the lock held)."""

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import logging
 import math
 from collections.abc import AsyncIterator, Awaitable, Callable, Coroutine
@@ -28,14 +29,14 @@ from robocloud.fleet.messages import Ack, Assign, State
 from robocloud.iaas.feed import Feed
 from robocloud.iaas.lifecycle import Rules
 from robocloud.iaas.missions.book import MissionBook, MissionRecord
-from robocloud.iaas.missions.models import MissionCreate
+from robocloud.iaas.missions.models import MissionCreate, MissionPublic, mission_json
 from robocloud.iaas.missions.plans import quick_plan
 from robocloud.iaas.missions.runner import MissionRunner, Ports, robot_of
 from robocloud.iaas.routes import RobotRoutes
 from robocloud.planning.mission import MAX_MISSION_ROBOTS, Mission, MissionInput, to_problem
 from robocloud.planning.plan import Plan
 from robocloud.planning.problem import Problem
-from robocloud.storage import RequestStore
+from robocloud.storage import MissionRow, RequestStore
 
 log = logging.getLogger(__name__)
 T = TypeVar("T")
@@ -64,7 +65,9 @@ class MissionService:
         self.blocking = blocking
         self.wall = wall
         self._solve = plan
-        self.feed: Feed[MissionRecord] = Feed()
+        self.feed: Feed[MissionPublic] = Feed()
+        self._dirty: dict[str, MissionRecord] = {}  # missions changed since last stored
+        self._stored: dict[str, tuple[str, int, int]] = {}  # id -> (state, history, version)
         self._runners: dict[str, MissionRunner] = {}
         self._tasks: set[asyncio.Task[Any]] = set()
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -83,13 +86,14 @@ class MissionService:
             start=self._start_work,
             stop=self._stop,
             state_of=self._state_of,
-            publish=self.feed.publish,
+            publish=self._publish,
         )
 
     # -- life of the service -------------------------------------------------------
 
     async def start(self) -> None:
         self._loop = asyncio.get_running_loop()
+        await self._end_unfinished()
         self._stop_listening = self.view.on_state(self._state_from_thread)
         self._spawn(self._tick_forever(), "the missions' ticks")
 
@@ -98,7 +102,47 @@ class MissionService:
         for task in list(self._tasks):
             task.cancel()
         await asyncio.gather(*self._tasks, return_exceptions=True)
+        with contextlib.suppress(RoboCloudError):
+            await self._save_dirty()
         self.feed.close()
+
+    async def _end_unfinished(self) -> None:
+        """Missions a previous run left unfinished end failed: they are not resumed."""
+        for row in await self.blocking(self.store.unfinished_missions):
+            now = self.wall()
+            why = (
+                f"the IaaS restarted while the mission was {row.state}; missions are not "
+                "resumed (robots still at its tasks are told to stop)"
+            )
+            document = {
+                **row.document,
+                "state": "failed",
+                "reason": why,
+                "updated_at": now,
+                "history": [*row.document.get("history", []),
+                            {"at": now, "state": "failed", "note": why}],
+            }
+            await self.blocking(
+                self.store.save_mission, dataclasses.replace(row, state="failed", document=document)
+            )
+            log.warning("mission %s ended: %s", row.id, why)
+
+    def _publish(self, record: MissionRecord) -> None:
+        self.feed.publish(mission_json(record))
+        version = (record.plan or {}).get("version", 0)
+        if self._stored.get(record.id) != (record.state, len(record.history), version):
+            self._dirty[record.id] = record
+
+    async def _save_dirty(self) -> None:
+        """Store the missions that changed, one after the other (in order, no overtaking)."""
+        while self._dirty:
+            mission_id, record = next(iter(self._dirty.items()))
+            del self._dirty[mission_id]
+            version = (record.plan or {}).get("version", 0)
+            self._stored[mission_id] = (record.state, len(record.history), version)
+            await self.blocking(self.store.save_mission, row_of(record))
+            if is_final(record.state):
+                self._stored.pop(mission_id, None)
 
     def _spawn(self, work: Coroutine[Any, Any, Any], what: str) -> asyncio.Task[Any]:
         task = asyncio.ensure_future(work)
@@ -115,6 +159,10 @@ class MissionService:
     async def _tick_forever(self) -> None:
         while True:
             await asyncio.sleep(TICK)
+            try:
+                await self._save_dirty()
+            except RoboCloudError as error:
+                log.warning("the missions could not be stored now: %s", error)
             for runner in list(self._runners.values()):
                 try:
                     await runner.tick()
@@ -127,27 +175,26 @@ class MissionService:
 
     async def submit(
         self, application: str, body: MissionCreate, idempotency_key: str | None
-    ) -> MissionRecord:
+    ) -> MissionPublic:
         mission = body.mission()
         to_problem(MissionInput(robots=[], mission=mission))  # its ids and precedence: a 422
         posted = body.model_dump(mode="json")
+        if idempotency_key is not None:
+            stored = await self.blocking(self.store.mission_by_key, application, idempotency_key)
+            if stored is not None and stored.id not in self._runners:
+                return _same_body(stored.document, posted, idempotency_key)
         record, created = self.book.create(
             application, mission, posted, body.label, body.time_limit, idempotency_key,
             self.wall(),
         )
         if not created:
-            if record.body != posted:
-                raise InvalidInput(
-                    f"Idempotency-Key {idempotency_key!r} was already used for another "
-                    f"mission ({record.id}) with a different body; a new mission needs a "
-                    "new key.",
-                    "Idempotency-Key",
-                )
-            return record
+            return _same_body(mission_json(record).model_dump(mode="json") | {"body": record.body},
+                              posted, idempotency_key)
+        await self.blocking(self.store.save_mission, row_of(record))
         runner = MissionRunner(record, self.ports)
         self._runners[record.id] = runner
         self._spawn(self._run(runner), f"mission {record.id}")
-        return record
+        return mission_json(record)
 
     async def _run(self, runner: MissionRunner) -> None:
         try:
@@ -159,26 +206,35 @@ class MissionService:
         if is_final(runner.record.state):
             self._runners.pop(runner.id, None)
 
-    def get(self, application: str, mission_id: str) -> MissionRecord:
-        record = None
+    async def get(self, application: str, mission_id: str) -> MissionPublic:
         if MISSION_ID.fullmatch(mission_id):
             record = self.book.get(mission_id, application)
-        if record is None:
-            raise NotFound(f"there is no mission {mission_id!r}.", mission_id)
-        return record
+            if record is not None:
+                return mission_json(record)
+            stored = await self.blocking(self.store.mission, mission_id, application)
+            if stored is not None:
+                return public_of(stored.document)
+        raise NotFound(f"there is no mission {mission_id!r}.", mission_id)
 
-    async def cancel(self, application: str, mission_id: str) -> MissionRecord:
-        record = self.get(application, mission_id)
+    async def page(
+        self, application: str, state: str | None, limit: int, before: str | None
+    ) -> tuple[list[MissionPublic], str | None]:
+        rows, cursor = await self.blocking(self.store.missions, application, state, limit, before)
+        shown = []
+        for row in rows:
+            live = self.book.get(row.id, application)
+            shown.append(mission_json(live) if live is not None else public_of(row.document))
+        return shown, cursor
+
+    async def cancel(self, application: str, mission_id: str) -> MissionPublic:
+        await self.get(application, mission_id)
         runner = self._runners.get(mission_id)
         if runner is not None:
             await runner.cancel()
-        return record
+        return await self.get(application, mission_id)
 
-    def events(self, application: str, mission_id: str) -> AsyncIterator[MissionRecord]:
-        async def now() -> MissionRecord:
-            return self.get(application, mission_id)
-
-        return self.feed.follow(mission_id, now)
+    def events(self, application: str, mission_id: str) -> AsyncIterator[MissionPublic]:
+        return self.feed.follow(mission_id, lambda: self.get(application, mission_id))
 
     def loan_ended(self, mission_id: str, robot: str, home: str, why: str) -> None:
         """A robot's home ended its loan to one of our missions on its own (any thread)."""
@@ -318,3 +374,30 @@ class Origins:
     def loan_ended(self, request_id: str, robot: str, home: str, why: str) -> None:
         to = self.missions if MISSION_ID.fullmatch(request_id) else self.requests
         to.loan_ended(request_id, robot, home, why)
+
+
+def row_of(record: MissionRecord) -> MissionRow:
+    """What the store keeps of a mission: its JSON, and what was posted (for a retry)."""
+    return MissionRow(
+        id=record.id,
+        application=record.application,
+        idempotency_key=record.idempotency_key,
+        state=record.state,
+        created_at=record.created_at,
+        document={**mission_json(record).model_dump(mode="json"), "body": record.body},
+    )
+
+
+def public_of(document: dict[str, Any]) -> MissionPublic:
+    return MissionPublic.model_validate({k: v for k, v in document.items() if k != "body"})
+
+
+def _same_body(document: dict[str, Any], posted: dict[str, Any], key: str | None) -> MissionPublic:
+    """The mission an Idempotency-Key was used for, if the body is the same; else a 422."""
+    if document.get("body") != posted:
+        raise InvalidInput(
+            f"Idempotency-Key {key!r} was already used for another mission "
+            f"({document.get('id')}) with a different body; a new mission needs a new key.",
+            "Idempotency-Key",
+        )
+    return public_of(document)

@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import sqlite3
+from pathlib import Path
+
 from storage_testing import Backend
 
-from robocloud.storage import MissionRow
+from robocloud.storage import MissionRow, SqlRequestStore
 
 
 def row(n: int, state: str = "underway", key: str | None = None, app: str = "app") -> MissionRow:
@@ -54,3 +57,16 @@ def test_missions_are_listed_newest_first_page_by_page(backend: Backend) -> None
     done, _ = store.missions("app", "completed", 10, None)
     assert [r.id[-1] for r in done] == ["5", "3"]
     assert {r.id[-1] for r in store.unfinished_missions()} == {"2", "4", "6", "7"}
+
+
+def test_a_store_made_before_missions_gains_their_table(tmp_path: Path) -> None:
+    url = f"sqlite:///{tmp_path / 'old.db'}"
+    SqlRequestStore(url).close()
+    with sqlite3.connect(tmp_path / "old.db") as old:  # as a store of the last release
+        old.execute("DROP TABLE missions")
+    store = SqlRequestStore(url)
+    try:
+        store.save_mission(row(2))
+        assert store.mission("mis-aaaaaaaaaaa2") == row(2)
+    finally:
+        store.close()

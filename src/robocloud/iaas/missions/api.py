@@ -16,10 +16,31 @@ from fastapi.sse import EventSourceResponse, ServerSentEvent
 from robocloud.domain.mission_ids import MISSION_ID
 from robocloud.domain.request import IDEMPOTENCY_KEY_PATTERN, IDEMPOTENCY_KEY_RULE
 from robocloud.iaas.missions.book import MISSION_STATES
-from robocloud.iaas.missions.models import MissionList, MissionPublic, read_body
+from robocloud.iaas.missions.models import MissionCreate, MissionList, MissionPublic, read_body
 from robocloud.iaas.missions.service import MissionService
 
 MissionId = Annotated[str, Path(description="a mission's id, e.g. mis-abcdefgh2345")]
+
+
+def _inlined(schema: Any, defs: dict[str, Any]) -> Any:
+    """``schema`` with its ``$defs`` references replaced by what they name (no cycles here)."""
+    if isinstance(schema, dict):
+        ref = schema.get("$ref")
+        if isinstance(ref, str) and ref.startswith("#/$defs/"):
+            return _inlined(defs[ref.removeprefix("#/$defs/")], defs)
+        return {k: _inlined(v, defs) for k, v in schema.items() if k != "$defs"}
+    if isinstance(schema, list):
+        return [_inlined(v, defs) for v in schema]
+    return schema
+
+
+def mission_body_schema() -> dict[str, Any]:
+    """The JSON Schema of a posted mission (``MissionCreate``), self-contained for the
+    OpenAPI: the body is read by ``read_body``, which reads JSON numbers and arrays
+    as this schema says (the planner's own models are strict)."""
+    schema = MissionCreate.model_json_schema()
+    inlined: dict[str, Any] = _inlined(schema, schema.get("$defs", {}))
+    return inlined
 
 
 async def missions_of(request: Request) -> MissionService:
@@ -46,6 +67,12 @@ def mission_routes(
         tags=["missions"],
         operation_id="create_mission",
         responses=answers(401, 413, 422),
+        openapi_extra={
+            "requestBody": {
+                "required": True,
+                "content": {"application/json": {"schema": mission_body_schema()}},
+            }
+        },
     )
     async def create_mission(
         missions: Missions,

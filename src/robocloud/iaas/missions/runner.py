@@ -178,7 +178,10 @@ class MissionRunner:
             except InvalidInput as error:
                 await self._end("rejected" if not replan else "failed", error.message)
                 return
-            plan = ports.quick(problem) if replan else await ports.plan(problem, record.time_limit)
+            if replan or problem.uncoverable() is not None:  # (no plan at all: said at once)
+                plan = ports.quick(problem)
+            else:
+                plan = await ports.plan(problem, record.time_limit)
             if plan.schedule is None:
                 why_not = plan.reason or "no plan serves every task."
                 if replan:

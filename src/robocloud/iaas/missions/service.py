@@ -65,6 +65,7 @@ class MissionService:
         self.blocking = blocking
         self.wall = wall
         self._solve = plan
+        self._planning = asyncio.Semaphore(1)
         self.feed: Feed[MissionPublic] = Feed()
         self._dirty: dict[str, MissionRecord] = {}  # missions changed since last stored
         self._stored: dict[str, tuple[str, int, int]] = {}  # id -> (state, history, version)
@@ -295,11 +296,14 @@ class MissionService:
         return robots
 
     async def _plan(self, problem: Problem, time_limit: float) -> Plan:
-        if self._solve is not None:
-            return await asyncio.to_thread(self._solve, problem, time_limit)
-        from robocloud.planning.solve import solve
+        """A plan within ``time_limit``, one mission at a time (each planner is a child
+        process that uses both cores: side by side they would only share them)."""
+        async with self._planning:
+            if self._solve is not None:
+                return await asyncio.to_thread(self._solve, problem, time_limit)
+            from robocloud.planning.solve import solve
 
-        return await asyncio.to_thread(solve, problem, time_limit)
+            return await asyncio.to_thread(solve, problem, time_limit)
 
     async def _hold(self, mission_id: str, robots: list[tuple[str, str]]) -> list[str]:
         """Hold robots for the mission: this cloud's in ``RobotRoutes``, the others lent."""

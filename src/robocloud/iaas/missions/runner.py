@@ -26,6 +26,10 @@ released as its last task ends, or at the end of the mission.
 
 Every method runs on the event loop, one at a time (``_turn``); commands
 to robots go through the ``Ports`` (threads).
+
+Why one long file: planning, sending, starting, the watchdog and re-planning
+all change the same tasks and robots of one mission under one turn; the
+pure parts (a plan's legs, the re-plan's input) are in ``plans.py``.
 """
 
 from __future__ import annotations

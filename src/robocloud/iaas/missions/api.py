@@ -49,6 +49,15 @@ async def missions_of(request: Request) -> MissionService:
 
 
 Missions = Annotated[MissionService, Depends(missions_of)]
+# What a client (and a fuzzer) can do next with the mission a POST made.
+MISSION_LINKS = {
+    name: {"operationId": operation, "parameters": {"mission_id": "$response.body#/id"}}
+    for name, operation in (
+        ("GetMission", "get_mission"),
+        ("CancelMission", "cancel_mission"),
+        ("FollowMission", "mission_events"),
+    )
+}
 
 
 def mission_routes(
@@ -66,7 +75,7 @@ def mission_routes(
         response_model=MissionPublic,
         tags=["missions"],
         operation_id="create_mission",
-        responses=answers(401, 413, 422),
+        responses={**answers(401, 413, 422), 202: {"links": MISSION_LINKS}},
         openapi_extra={
             "requestBody": {
                 "required": True,
@@ -159,6 +168,14 @@ def mission_routes(
         """Cancel a mission (again: harmless): every robot of it is told to stop, and released."""
         return await missions.cancel(application, mission_id)
 
+    async def existing_mission(
+        mission_id: MissionId,
+        missions: Missions,
+        application: Annotated[str, Depends(application_of)],
+    ) -> MissionPublic:
+        """The application's mission, or 404 (as a dependency: before a stream starts)."""
+        return await missions.get(application, mission_id)
+
     @router.get(
         "/v1/missions/{mission_id}/events",
         dependencies=secured,
@@ -168,13 +185,12 @@ def mission_routes(
         responses=answers(401, 404),
     )
     async def mission_events(
-        mission_id: MissionId,
+        mission: Annotated[MissionPublic, Depends(existing_mission)],
         missions: Missions,
         application: Annotated[str, Depends(application_of)],
     ) -> AsyncIterator[ServerSentEvent]:
         """Server-sent events: the mission now, then after each change, until it is final."""
-        await missions.get(application, mission_id)  # 404 before the stream starts
-        async for mission in missions.events(application, mission_id):
-            yield ServerSentEvent(event="mission", data=mission.model_dump(mode="json"))
+        async for now in missions.events(application, mission.id):
+            yield ServerSentEvent(event="mission", data=now.model_dump(mode="json"))
 
     return router

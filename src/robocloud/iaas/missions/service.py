@@ -66,6 +66,7 @@ class MissionService:
         self.wall = wall
         self._solve = plan
         self._planning = asyncio.Semaphore(1)
+        self._saving = asyncio.Lock()
         self.feed: Feed[MissionPublic] = Feed()
         self._dirty: dict[str, MissionRecord] = {}  # missions changed since last stored
         self._stored: dict[str, tuple[str, int, int]] = {}  # id -> (state, history, version)
@@ -136,14 +137,15 @@ class MissionService:
 
     async def _save_dirty(self) -> None:
         """Store the missions that changed, one after the other (in order, no overtaking)."""
-        while self._dirty:
-            mission_id, record = next(iter(self._dirty.items()))
-            del self._dirty[mission_id]
-            version = (record.plan or {}).get("version", 0)
-            self._stored[mission_id] = (record.state, len(record.history), version)
-            await self.blocking(self.store.save_mission, row_of(record))
-            if is_final(record.state):
-                self._stored.pop(mission_id, None)
+        async with self._saving:
+            while self._dirty:
+                mission_id, record = next(iter(self._dirty.items()))
+                del self._dirty[mission_id]
+                version = (record.plan or {}).get("version", 0)
+                self._stored[mission_id] = (record.state, len(record.history), version)
+                await self.blocking(self.store.save_mission, row_of(record))
+                if is_final(record.state):
+                    self._stored.pop(mission_id, None)
 
     def _spawn(self, work: Coroutine[Any, Any, Any], what: str) -> asyncio.Task[Any]:
         task = asyncio.ensure_future(work)
@@ -220,6 +222,7 @@ class MissionService:
     async def page(
         self, application: str, state: str | None, limit: int, before: str | None
     ) -> tuple[list[MissionPublic], str | None]:
+        await self._save_dirty()  # the list is the store's: what changed is in it first
         rows, cursor = await self.blocking(self.store.missions, application, state, limit, before)
         shown = []
         for row in rows:

@@ -32,6 +32,7 @@ from robocloud.iaas.missions.book import MissionBook, MissionRecord
 from robocloud.iaas.missions.models import MissionCreate, MissionPublic, mission_json
 from robocloud.iaas.missions.plans import quick_plan
 from robocloud.iaas.missions.runner import MissionRunner, Ports, robot_of
+from robocloud.iaas.owned import spawn_owned
 from robocloud.iaas.routes import RobotRoutes
 from robocloud.planning.mission import MAX_MISSION_ROBOTS, Mission, MissionInput, to_problem
 from robocloud.planning.plan import Plan
@@ -148,16 +149,8 @@ class MissionService:
                     self._stored.pop(mission_id, None)
 
     def _spawn(self, work: Coroutine[Any, Any, Any], what: str) -> asyncio.Task[Any]:
-        task = asyncio.ensure_future(work)
-        self._tasks.add(task)
-
-        def done(finished: asyncio.Task[Any]) -> None:
-            self._tasks.discard(finished)
-            if not finished.cancelled() and finished.exception() is not None:
-                log.error("%s failed", what, exc_info=finished.exception())
-
-        task.add_done_callback(done)
-        return task
+        """A task this service owns: awaited in ``stop``, its error logged."""
+        return spawn_owned(self._tasks, work, what, log)
 
     async def _tick_forever(self) -> None:
         while True:

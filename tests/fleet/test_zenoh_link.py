@@ -237,7 +237,7 @@ def test_a_refused_state_is_answered_on_the_robots_error_key_and_logged(
     assert first["field"] == "kind"
     assert first["error"] == "kind is missing."
     assert first["robot"] == "a-0100"
-    assert first["protocol"] == "1.1"
+    assert first["protocol"] == "1.2"
     mismatch = by_key["robocloud/cloud-a/robots/a-0101/error"]
     assert mismatch["field"] == "id"
     assert "names robot a-0102 but came on the key of a-0101" in str(mismatch["error"])

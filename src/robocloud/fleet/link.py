@@ -26,7 +26,7 @@ from robocloud.errors import Unavailable
 from robocloud.fleet import keys
 from robocloud.fleet.columns import StateColumns
 from robocloud.fleet.ingest import Refusal, StateReader
-from robocloud.fleet.messages import Ack, Assign, Cancel, State
+from robocloud.fleet.messages import Ack, Assign, Cancel, Start, State
 from robocloud.fleet.state_errors import (
     MAX_BATCH_BYTES,
     MAX_BATCH_STATES,
@@ -76,6 +76,10 @@ class RobotLink(Protocol):
 
     def cancel(self, robot_id: str, request_id: str) -> Ack:
         """Stop a robot working on ``request_id``."""
+        ...
+
+    def start(self, robot_id: str, request_id: str) -> Ack:
+        """Protocol 1.2: let a robot held at its task's place start working on ``request_id``."""
         ...
 
     def on_state(self, listener: StateListener) -> Callable[[], None]:
@@ -372,6 +376,9 @@ class ZenohRobotLink:
     def cancel(self, robot_id: str, request_id: str) -> Ack:
         return self._command(robot_id, Cancel(request_id=request_id))
 
+    def start(self, robot_id: str, request_id: str) -> Ack:
+        return self._command(robot_id, Start(request_id=request_id))
+
     def count(self) -> int:
         """How many robots are heard from."""
         return self._latest.count()
@@ -386,7 +393,7 @@ class ZenohRobotLink:
     def __exit__(self, *_exc: object) -> None:
         self.close()
 
-    def _command(self, robot_id: str, command: Assign | Cancel) -> Ack:
+    def _command(self, robot_id: str, command: Assign | Cancel | Start) -> Ack:
         replies = self._session.get(
             keys.cmd_key(self._cloud, robot_id),
             payload=command.model_dump_json(),

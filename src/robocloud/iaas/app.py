@@ -56,6 +56,7 @@ from robocloud.iaas.config import Settings
 from robocloud.iaas.docs_ui import install_docs
 from robocloud.iaas.elsewhere import Elsewhere
 from robocloud.iaas.metrics import IaasMetrics
+from robocloud.iaas.missions.api import mission_routes
 from robocloud.iaas.models import (
     ErrorBody,
     Health,
@@ -163,13 +164,17 @@ def create_app(
     app.add_middleware(Gate, keys=settings.api_keys, limit=settings.max_body_bytes)
     routes = _routes()
     app.include_router(routes)
+    missions = mission_routes(application_of, SECURED, answers)
+    app.include_router(missions)
     app.openapi = lambda: _openapi(app)  # type: ignore[method-assign]
     install_docs(app)
     install_protocol(app)
     # Every route, for Allow and the OpenAPI's answers (those of included
     # routers are not in app.routes as routes of their own).
     app.state.routes = [
-        r for r in (*routes.routes, *app.router.routes) if isinstance(r, APIRoute)
+        r
+        for r in (*routes.routes, *missions.routes, *app.router.routes)
+        if isinstance(r, APIRoute)
     ]
     return app
 

@@ -1,4 +1,4 @@
-"""The event streams of requests: each follower gets the request now, then every change.
+"""The event streams of requests (and missions): each follower gets it now, then every change.
 
 ``RequestFeed`` keeps, per request, the queues of the clients following it
 (``GET /v1/requests/{id}/events``); the actors publish each change to it. A
@@ -9,16 +9,30 @@ from __future__ import annotations
 
 import asyncio
 from collections.abc import AsyncIterator, Awaitable, Callable
+from typing import Generic, Protocol, TypeVar
 
 from robocloud.domain import is_final
 from robocloud.storage import RequestRecord
 
 
-class RequestFeed:
-    def __init__(self) -> None:
-        self._listeners: dict[str, set[asyncio.Queue[RequestRecord | None]]] = {}
+class Followed(Protocol):
+    """What a feed follows: a request, or a mission (same final states)."""
 
-    def publish(self, record: RequestRecord) -> None:
+    @property
+    def id(self) -> str: ...
+
+    @property
+    def state(self) -> str: ...
+
+
+R = TypeVar("R", bound=Followed)
+
+
+class Feed(Generic[R]):
+    def __init__(self) -> None:
+        self._listeners: dict[str, set[asyncio.Queue[R | None]]] = {}
+
+    def publish(self, record: R) -> None:
         for queue in self._listeners.get(record.id, ()):
             queue.put_nowait(record)
 
@@ -32,11 +46,9 @@ class RequestFeed:
         """How many streams are open now."""
         return sum(len(queues) for queues in self._listeners.values())
 
-    async def follow(
-        self, request_id: str, read: Callable[[], Awaitable[RequestRecord]]
-    ) -> AsyncIterator[RequestRecord]:
+    async def follow(self, request_id: str, read: Callable[[], Awaitable[R]]) -> AsyncIterator[R]:
         """The request now (``read``), then after each change, until it is final."""
-        queue: asyncio.Queue[RequestRecord | None] = asyncio.Queue()
+        queue: asyncio.Queue[R | None] = asyncio.Queue()
         self._listeners.setdefault(request_id, set()).add(queue)
         try:
             record = await read()
@@ -53,3 +65,7 @@ class RequestFeed:
                 queues.discard(queue)
                 if not queues:
                     del self._listeners[request_id]
+
+
+class RequestFeed(Feed[RequestRecord]):
+    """The requests' event streams."""

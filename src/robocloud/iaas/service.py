@@ -48,6 +48,7 @@ from robocloud.iaas.admission import Admission
 from robocloud.iaas.config import Settings
 from robocloud.iaas.feed import RequestFeed
 from robocloud.iaas.metrics import IaasMetrics
+from robocloud.iaas.owned import spawn_owned
 from robocloud.iaas.routes import RobotRoutes
 from robocloud.iaas.selector import SelectionPool, SelectorSettings
 from robocloud.iaas.store_writes import StoreWrites
@@ -151,6 +152,7 @@ class RequestService:
             metrics=self.metrics,
             selection_turn=lambda: self._selection_turns,
         )
+        self.rules = self._shell.rules  # the watchdog's rule, shared with the missions
         self.admission = Admission(
             settings.max_waiting, settings.busy_after, self.metrics, self._shell.mono
         )
@@ -210,16 +212,7 @@ class RequestService:
 
     def _spawn(self, work: Coroutine[Any, Any, Any], what: str) -> asyncio.Task[Any]:
         """A task this service owns: awaited in ``stop``, its error logged."""
-        task = asyncio.ensure_future(work)
-        self._tasks.add(task)
-
-        def done(finished: asyncio.Task[Any]) -> None:
-            self._tasks.discard(finished)
-            if not finished.cancelled() and finished.exception() is not None:
-                log.error("%s failed", what, exc_info=finished.exception())
-
-        task.add_done_callback(done)
-        return task
+        return spawn_owned(self._tasks, work, what, log)
 
     def _start(
         self,

@@ -112,6 +112,7 @@ async def build_cloud(
             coalition_of=routes.robots_of,
             missions=book.status,
             kept=routes.kept_by_missions,
+            set_aside=routes.aside,
         )
         overlay = None
         if session is not None and settings.federation:

@@ -2,6 +2,10 @@
 
 It answers exactly as ``SqlRequestStore`` does (the same checks, sentences
 and JSON round trip), behind one lock; nothing survives the process.
+
+Why one long file: it is the in-memory twin of the four SQL stores
+(requests, loans, holds, missions) behind one lock; cut by concern, each part
+would need the lock and the shared tables of the others.
 """
 
 from __future__ import annotations

@@ -509,6 +509,10 @@ def _routes() -> Any:
         """
         after = decode_cursor(cursor) if cursor is not None else None
         wanted = RobotFilter(status, tuple(capability or ()), cloud)
+
+        def owns(request_id: str) -> bool:  # only its owner sees a request id and progress
+            return service.owner_of(request_id) == application
+
         link = service.link
         try:
             held = service.store.reservations()
@@ -520,7 +524,9 @@ def _routes() -> Any:
         overlay: ZenohOverlay | None = request.app.state.overlay
         if scope == "federation" and overlay is not None and cloud != service.settings.cloud:
             fleets = await asyncio.to_thread(overlay.fleets)
-            remote = remote_rows((f.robots for f in fleets), wanted, service.settings.cloud)
+            remote = remote_rows(
+                (f.robots for f in fleets), wanted, service.settings.cloud, owns
+            )
         page = build_page(
             local,
             remote,
@@ -531,6 +537,7 @@ def _routes() -> Any:
             held,
             robot_json_cache,
             service.routes.aside,
+            owns,
         )
         etag = etag_of(page)
         headers = {

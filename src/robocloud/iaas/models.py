@@ -117,8 +117,14 @@ class RobotPublic(BaseModel):
     capability_kinds: dict[str, str] = Field(
         default_factory=dict, description="capability name -> sensing or actuating"
     )
-    request: str | None = Field(None, description="the request the robot is reserved for")
-    progress: Progress | None = None
+    request: str | None = Field(
+        None,
+        description="the request the robot is reserved for; null unless the asking "
+        "application sent that request",
+    )
+    progress: Progress | None = Field(
+        None, description="how far its task is; null unless the asking application owns it"
+    )
     set_aside: SetAsidePublic | None = Field(
         None,
         description="this cloud's selections do not choose the robot until `until`: it "

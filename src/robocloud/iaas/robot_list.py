@@ -81,11 +81,17 @@ class RobotJson:
     """
 
     def __init__(self) -> None:
-        self._kept: dict[str, tuple[Robot, Any, str | None, SetAside | None, bytes]] = {}
+        self._kept: dict[str, tuple[Robot, Any, str | None, SetAside | None, bool, bytes]] = {}
 
     def steady(
-        self, robot: Robot, state: Any, request: str | None, aside: SetAside | None = None
+        self,
+        robot: Robot,
+        state: Any,
+        request: str | None,
+        aside: SetAside | None = None,
+        owned: bool = False,
     ) -> bytes:
+        """The robot's JSON; ``owned``: the asker owns ``request`` (it sees it and the progress)."""
         kept = self._kept.get(robot.id)
         if (
             kept is not None
@@ -93,12 +99,13 @@ class RobotJson:
             and kept[1] is state
             and kept[2] == request
             and kept[3] is aside
+            and kept[4] is owned
         ):
-            return kept[4]
-        data = robot_json(robot, state, None, request, aside)
+            return kept[5]
+        data = robot_json(robot, state, None, request, aside, owned)
         del data["seen_ago"]
         raw = msgspec.json.encode(data)
-        self._kept[robot.id] = (robot, state, request, aside, raw)
+        self._kept[robot.id] = (robot, state, request, aside, owned, raw)
         return raw
 
     def prune(self, present: int) -> None:
@@ -140,14 +147,21 @@ def local_rows(
     ]
 
 
-def remote_rows(fleets: Iterable[Sequence[dict[str, Any]]], wanted: RobotFilter,
-                exclude_cloud: str) -> list[tuple[Key, dict[str, Any]]]:
-    """Other clouds' robots (as their homes sent them) that match, as wire values."""
+def remote_rows(
+    fleets: Iterable[Sequence[dict[str, Any]]],
+    wanted: RobotFilter,
+    exclude_cloud: str,
+    owns: Callable[[str], bool] = lambda request: False,
+) -> list[tuple[Key, dict[str, Any]]]:
+    """Other clouds' robots (as their homes sent them) that match, as wire values.
+
+    ``owns``: whether the asking application owns a request (it sees its id and progress).
+    """
     rows = []
     for robots in fleets:
         for data in robots:
             try:
-                robot = remote_robot_json(data)
+                robot = remote_robot_json(data, owns)
             except (KeyError, TypeError, ValueError, AttributeError):
                 continue  # a home that sent something else: left out, not a 500
             if robot["cloud"] != exclude_cloud and wanted.keeps(
@@ -189,7 +203,9 @@ def build_page(
     held: dict[str, str],
     cache: RobotJson,
     aside: Callable[[str], SetAside | None] = lambda robot: None,
+    owns: Callable[[str], bool] = lambda request: False,
 ) -> Page:
+    """The page after ``after``; a robot's request and progress only where the asker ``owns`` it."""
     rows: list[tuple[Key, Any]] = [*local, *remote]
     chosen, total, next_key = page_of(rows, after, limit)
     robots, steady = [], []
@@ -199,7 +215,9 @@ def build_page(
             robots.append(raw)
             steady.append(raw)
             continue
-        raw = cache.steady(item, states.get(item.id), held.get(item.id), aside(item.id))
+        request = held.get(item.id)
+        owned = request is not None and owns(request)
+        raw = cache.steady(item, states.get(item.id), request, aside(item.id), owned)
         age = ages.get(item.id)
         seen = msgspec.json.encode(round(age, 3)) if age is not None else b"null"
         robots.append(raw[:-1] + b',"seen_ago":' + seen + b"}")

@@ -348,6 +348,11 @@ class RequestService:
         member = self._member(robot_id)
         return (member.phase, member.progress) if member is not None else None
 
+    def owner_of(self, request_id: str) -> str | None:
+        """The application of a request this process carries out now, or None."""
+        actor = self._actors.get(request_id)
+        return actor.record.application if actor is not None else None
+
     def request_of(self, robot_id: str) -> str | None:
         return self.routes.request_of(robot_id)
 

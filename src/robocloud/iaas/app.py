@@ -81,6 +81,7 @@ from robocloud.iaas.robot_list import (
     remote_rows,
 )
 from robocloud.iaas.service import REQUEST_ID, RequestService
+from robocloud.json_body import repeated_key
 from robocloud.storage import RequestRecord, RequestStore, StoreUnavailable
 
 log = logging.getLogger(__name__)
@@ -586,10 +587,20 @@ def allowed_methods(request: Request) -> list[str]:
 NOT_AN_OBJECT = frozenset({"model_attributes_type", "model_type", "dict_type"})
 
 
+def _media_type(headers: Headers) -> str:
+    return headers.get("content-type", "").split(";", 1)[0].strip().lower()
+
+
 def _says_json(request: Request) -> bool:
     """Whether the request's Content-Type is JSON (``application/json`` or ``+json``)."""
-    media = request.headers.get("content-type", "").split(";", 1)[0].strip().lower()
+    media = _media_type(request.headers)
     return media == "application/json" or media.endswith("+json")
+
+
+def _json_body(headers: Headers) -> bool:
+    """Whether FastAPI reads the body as JSON: its Content-Type says so, or there is none."""
+    media = _media_type(headers)
+    return not media or media == "application/json" or media.endswith("+json")
 
 
 def _install_error_handlers(app: FastAPI) -> None:
@@ -651,7 +662,7 @@ def _install_error_handlers(app: FastAPI) -> None:
 
 class Gate:
     """Checks what needs no body first: the API key on ``/v1/`` and ``/metrics`` (401), then the
-    body's size (413).
+    body's size (413), then a JSON body's repeated keys (422, ``robocloud.json_body``).
 
     A pure ASGI middleware, so a request without a key is refused before its
     body is read or parsed, and a body without a length is read at most
@@ -701,7 +712,7 @@ class Gate:
             )
             await _error(refusal)(scope, receive, send)
             return
-        if length is None and scope["method"] in ("POST", "PUT", "PATCH"):
+        if scope["method"] in ("POST", "PUT", "PATCH"):
             body = b""
             more = True
             while more:
@@ -716,6 +727,11 @@ class Gate:
                     )
                     await _error(refusal)(scope, receive, send)
                     return
+            # Every JSON body of every route: a repeated key is a 422 naming it.
+            repeated = repeated_key(body) if body and _json_body(headers) else None
+            if repeated is not None:
+                await _error(repeated)(scope, receive, send)
+                return
             receive = _replay(body, receive)
         await self.app(scope, receive, send)
 

@@ -55,6 +55,7 @@ from robocloud.iaas.cloud import build_cloud
 from robocloud.iaas.config import Settings
 from robocloud.iaas.docs_ui import install_docs
 from robocloud.iaas.elsewhere import Elsewhere
+from robocloud.iaas.feed import Updates
 from robocloud.iaas.metrics import IaasMetrics
 from robocloud.iaas.models import (
     ErrorBody,
@@ -70,6 +71,7 @@ from robocloud.iaas.robot_list import (
     CURSOR_PATTERN,
     DEFAULT_LIMIT,
     MAX_LIMIT,
+    PAGE_BYTES,
     RobotFilter,
     RobotJson,
     build_page,
@@ -292,6 +294,19 @@ async def existing_request(
 OwnedRequest = Annotated[RequestRecord, Depends(existing_request)]
 
 
+async def request_updates(record: OwnedRequest, service: Service) -> AsyncIterator[Updates]:
+    """The stream's queue in the request feed, for as long as the response lasts.
+
+    A dependency with ``yield``: FastAPI ends it when the response ends, the
+    client gone included (``robocloud.iaas.feed`` says why not in the stream).
+    """
+    with service.feed.subscribe(record.id) as updates:
+        yield updates
+
+
+RequestUpdates = Annotated[Updates, Depends(request_updates, scope="request")]
+
+
 def _routes() -> Any:
     from fastapi import APIRouter
 
@@ -423,10 +438,11 @@ def _routes() -> Any:
         record: OwnedRequest,
         service: Service,
         application: Application,
+        updates: RequestUpdates,
     ) -> AsyncIterator[ServerSentEvent]:
         """Server-sent events: the request now, then after each change, until it is final."""
         # The dependency answered 404 for an unknown request before the stream started.
-        async for update in service.events(application, record.id):
+        async for update in service.events(application, record.id, updates):
             yield ServerSentEvent(
                 event="request", data=request_public(update, service).model_dump(mode="json")
             )
@@ -480,7 +496,8 @@ def _routes() -> Any:
                 ge=1,
                 le=MAX_LIMIT,
                 description=f"robots a page ({DEFAULT_LIMIT} unless said, at most {MAX_LIMIT}); "
-                "the Link header (rel=next) names the next page",
+                f"a page also stops at the robot that takes it past {PAGE_BYTES} bytes of "
+                "JSON; the Link header (rel=next) names the next page",
             ),
         ] = DEFAULT_LIMIT,
         cursor: Annotated[

@@ -39,6 +39,15 @@ from robocloud.iaas.routes import SetAside
 
 DEFAULT_LIMIT = 1000  # robots a page when the client does not say
 MAX_LIMIT = 10_000  # the most a client may ask for (about 2.8 MB of JSON, 0.2 MB gzipped)
+# A page stops at the robot that takes its JSON past this many bytes (a robot
+# may carry 100 capabilities of 128-character names: about 30 KB; 10,000 of
+# them made a 300 MB page); ``Link`` then leads on from there. Ordinary
+# robots (about 300 bytes) never reach it below MAX_LIMIT.
+PAGE_BYTES = 4 * 1024 * 1024
+# Robots whose JSON the listing keeps between pages (about 0.6 KB each): a
+# fleet at rest of up to this many costs a look-up a robot; a larger one is
+# encoded again page by page instead of kept whole.
+KEPT = 20_000
 CURSOR_PATTERN = explained(
     r"^[A-Za-z0-9_-]{1,700}$", "the cursor of the previous page (letters, digits, - and _)"
 )
@@ -109,8 +118,10 @@ class RobotJson:
         return raw
 
     def prune(self, present: int) -> None:
-        """Forget robots no longer listed once the cache is twice the fleet."""
-        if len(self._kept) > 2 * present + 100:
+        """Forget robots no longer listed once the cache is twice the fleet, and every robot
+        once it holds more than ``KEPT``: a walk of a large fleet keeps one page's worth, not
+        the fleet's (issue 25: 100,000 robots' JSON stayed after a full listing)."""
+        if len(self._kept) > min(2 * present + 100, KEPT):
             self._kept.clear()
 
 
@@ -204,24 +215,32 @@ def build_page(
     cache: RobotJson,
     aside: Callable[[str], SetAside | None] = lambda robot: None,
     owns: Callable[[str], bool] = lambda request: False,
+    budget: int = PAGE_BYTES,
 ) -> Page:
-    """The page after ``after``; a robot's request and progress only where the asker ``owns`` it."""
+    """The page after ``after``: at most ``limit`` robots, and it stops at the first that
+    takes it past ``budget`` bytes (one robot at least); a robot's request and progress
+    only where the asker ``owns`` it."""
     rows: list[tuple[Key, Any]] = [*local, *remote]
     chosen, total, next_key = page_of(rows, after, limit)
     robots, steady = [], []
-    for _, item in chosen:
+    size = 0
+    for index, (key, item) in enumerate(chosen):
         if isinstance(item, dict):
             raw = msgspec.json.encode(item)  # seen_ago is null: nothing to leave out
             robots.append(raw)
             steady.append(raw)
-            continue
-        request = held.get(item.id)
-        owned = request is not None and owns(request)
-        raw = cache.steady(item, states.get(item.id), request, aside(item.id), owned)
-        age = ages.get(item.id)
-        seen = msgspec.json.encode(round(age, 3)) if age is not None else b"null"
-        robots.append(raw[:-1] + b',"seen_ago":' + seen + b"}")
-        steady.append(raw)
+        else:
+            request = held.get(item.id)
+            owned = request is not None and owns(request)
+            raw = cache.steady(item, states.get(item.id), request, aside(item.id), owned)
+            age = ages.get(item.id)
+            seen = msgspec.json.encode(round(age, 3)) if age is not None else b"null"
+            robots.append(raw[:-1] + b',"seen_ago":' + seen + b"}")
+            steady.append(raw)
+        size += len(robots[-1]) + 1
+        if size >= budget and index + 1 < len(chosen):
+            next_key = key  # the rest of the page is the next page's
+            break
     cache.prune(len(local))
     return Page(robots, steady, total, next_key)
 

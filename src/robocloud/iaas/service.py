@@ -46,7 +46,7 @@ from robocloud.iaas import lifecycle as lc
 from robocloud.iaas.actor import RequestActor, Selector, Shell
 from robocloud.iaas.admission import Admission
 from robocloud.iaas.config import Settings
-from robocloud.iaas.feed import RequestFeed
+from robocloud.iaas.feed import RequestFeed, Updates
 from robocloud.iaas.metrics import IaasMetrics
 from robocloud.iaas.routes import RobotRoutes
 from robocloud.iaas.selector import SelectionPool, SelectorSettings
@@ -92,6 +92,7 @@ class RequestService:
         self.clock = clock
         self.routes = routes or RobotRoutes(settings.set_aside_for, clock)
         self.feed = RequestFeed()
+        self.metrics.observe_streams(self.feed.following)
         # This cloud's presence summary (its Home's) and its loans.
         self.home_info: Callable[[], CloudInfo] = home_info or (
             lambda: CloudInfo(cloud=settings.cloud, robots=len(self.link.robots()), idle=0)
@@ -365,9 +366,11 @@ class RequestService:
         actor = self._actors.get(request_id)
         return actor.life if actor is not None else None
 
-    def events(self, application: str, request_id: str) -> AsyncIterator[RequestRecord]:
-        """The request now, then after each change, until it is final."""
-        return self.feed.follow(request_id, lambda: self.get(application, request_id))
+    def events(
+        self, application: str, request_id: str, updates: Updates
+    ) -> AsyncIterator[RequestRecord]:
+        """The request now, then each change (``updates``: ``feed.subscribe``), until final."""
+        return self.feed.follow(updates, lambda: self.get(application, request_id))
 
     def loan_ended(self, request_id: str, robot: str, home: str, why: str) -> None:
         """A robot's home ended its loan to one of our requests on its own (any thread).

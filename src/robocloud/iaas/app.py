@@ -80,6 +80,7 @@ from robocloud.iaas.robot_list import (
     local_rows,
     matches,
     next_link,
+    refused_rows,
     remote_rows,
 )
 from robocloud.iaas.service import REQUEST_ID, RequestService
@@ -538,11 +539,15 @@ def _routes() -> Any:
             service.store_failed(service.store.reservations)
             raise
         local = local_rows(link.robots(), held, wanted)
+        states = link.states()
+        refused = link.refused()  # robots whose states are refused, with the reason
         remote: list[tuple[tuple[str, str], dict[str, Any]]] = []
+        if refused and (cloud is None or cloud == service.settings.cloud):
+            remote = refused_rows(service.settings.cloud, refused, states, wanted)
         overlay: ZenohOverlay | None = request.app.state.overlay
         if scope == "federation" and overlay is not None and cloud != service.settings.cloud:
             fleets = await asyncio.to_thread(overlay.fleets)
-            remote = remote_rows(
+            remote += remote_rows(
                 (f.robots for f in fleets), wanted, service.settings.cloud, owns
             )
         page = build_page(
@@ -550,12 +555,13 @@ def _routes() -> Any:
             remote,
             after,
             limit,
-            link.states(),
+            states,
             link.ages(),
             held,
             robot_json_cache,
             service.routes.aside,
             owns,
+            refused=refused,
         )
         etag = etag_of(page)
         headers = {

@@ -130,6 +130,12 @@ class RobotPublic(BaseModel):
         description="this cloud's selections do not choose the robot until `until`: it "
         "failed requests in a row (no ack, stalled, past its expected finish)",
     )
+    refused: str | None = Field(
+        None,
+        description="why its last state was refused (e.g. its sent_at far from this cloud's "
+        "clock), until one is accepted; a robot none of whose states was accepted is listed "
+        "offline with this alone",
+    )
     seen_ago: float | None = Field(None, description="seconds since its last state message")
 
 

@@ -90,6 +90,7 @@ def robot_json(
     request: str | None,
     aside: SetAside | None = None,
     owned: bool = False,
+    refused: str | None = None,
 ) -> dict[str, Any]:
     """One robot of this cloud as ``RobotPublic`` puts it on the wire, as plain JSON values.
 
@@ -114,7 +115,28 @@ def robot_json(
         "request": request if owned else None,
         "progress": progress,
         "set_aside": set_aside_json(aside),
+        "refused": refused,
         "seen_ago": round(age, 3) if age is not None else None,
+    }
+
+
+def refused_robot_json(robot_id: str, cloud: str, why: str) -> dict[str, Any]:
+    """A robot of this cloud none of whose states was accepted: its id and why, on the wire."""
+    return {
+        "id": robot_id,
+        "cloud": cloud,
+        "kind": None,
+        "position": [],
+        "speed": 0.0,
+        "battery": 0.0,
+        "status": "offline",
+        "capabilities": [],
+        "capability_kinds": {},
+        "request": None,
+        "progress": None,
+        "set_aside": None,
+        "refused": why,
+        "seen_ago": None,
     }
 
 
@@ -161,5 +183,6 @@ def remote_robot_json(data: dict[str, Any], owns: Callable[[str], bool]) -> dict
         "request": request if owned else None,
         "progress": progress,
         "set_aside": None,
+        "refused": None,
         "seen_ago": None,
     }

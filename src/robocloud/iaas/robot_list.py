@@ -34,7 +34,12 @@ import msgspec
 
 from robocloud.domain import Robot
 from robocloud.errors import InvalidInput, explained
-from robocloud.iaas.presenters import remote_robot_json, robot_json, shown_status
+from robocloud.iaas.presenters import (
+    refused_robot_json,
+    remote_robot_json,
+    robot_json,
+    shown_status,
+)
 from robocloud.iaas.routes import SetAside
 
 DEFAULT_LIMIT = 1000  # robots a page when the client does not say
@@ -90,7 +95,9 @@ class RobotJson:
     """
 
     def __init__(self) -> None:
-        self._kept: dict[str, tuple[Robot, Any, str | None, SetAside | None, bool, bytes]] = {}
+        self._kept: dict[
+            str, tuple[Robot, Any, str | None, SetAside | None, bool, str | None, bytes]
+        ] = {}
 
     def steady(
         self,
@@ -99,6 +106,7 @@ class RobotJson:
         request: str | None,
         aside: SetAside | None = None,
         owned: bool = False,
+        refused: str | None = None,
     ) -> bytes:
         """The robot's JSON; ``owned``: the asker owns ``request`` (it sees it and the progress)."""
         kept = self._kept.get(robot.id)
@@ -109,12 +117,13 @@ class RobotJson:
             and kept[2] == request
             and kept[3] is aside
             and kept[4] is owned
+            and kept[5] == refused
         ):
-            return kept[5]
-        data = robot_json(robot, state, None, request, aside, owned)
+            return kept[6]
+        data = robot_json(robot, state, None, request, aside, owned, refused)
         del data["seen_ago"]
         raw = msgspec.json.encode(data)
-        self._kept[robot.id] = (robot, state, request, aside, owned, raw)
+        self._kept[robot.id] = (robot, state, request, aside, owned, refused, raw)
         return raw
 
     def prune(self, present: int) -> None:
@@ -155,6 +164,21 @@ def local_rows(
         for robot in robots
         if wanted.keeps(robot.cloud, shown_status(robot.status, held.get(robot.id)),
                         robot.capabilities)
+    ]
+
+
+def refused_rows(
+    cloud: str, refused: dict[str, str], known: Iterable[str], wanted: RobotFilter
+) -> list[tuple[Key, dict[str, Any]]]:
+    """Robots of this cloud none of whose states was accepted: listed offline with the reason.
+
+    At most ``MAX_TRACKED`` of them (``robocloud.fleet.state_errors``), one reason each.
+    """
+    heard = set(known)
+    return [
+        ((cloud, robot), refused_robot_json(robot, cloud, why))
+        for robot, why in refused.items()
+        if robot not in heard and wanted.keeps(cloud, "offline", ())
     ]
 
 
@@ -216,6 +240,7 @@ def build_page(
     aside: Callable[[str], SetAside | None] = lambda robot: None,
     owns: Callable[[str], bool] = lambda request: False,
     budget: int = PAGE_BYTES,
+    refused: dict[str, str] | None = None,
 ) -> Page:
     """The page after ``after``: at most ``limit`` robots, and it stops at the first that
     takes it past ``budget`` bytes (one robot at least); a robot's request and progress
@@ -232,7 +257,8 @@ def build_page(
         else:
             request = held.get(item.id)
             owned = request is not None and owns(request)
-            raw = cache.steady(item, states.get(item.id), request, aside(item.id), owned)
+            raw = cache.steady(item, states.get(item.id), request, aside(item.id), owned,
+                               refused.get(item.id) if refused else None)
             age = ages.get(item.id)
             seen = msgspec.json.encode(round(age, 3)) if age is not None else b"null"
             robots.append(raw[:-1] + b',"seen_ago":' + seen + b"}")

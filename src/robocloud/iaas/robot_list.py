@@ -126,6 +126,9 @@ class RobotJson:
         self._kept[robot.id] = (robot, state, request, aside, owned, refused, raw)
         return raw
 
+    def __len__(self) -> int:
+        return len(self._kept)
+
     def prune(self, present: int) -> None:
         """Forget robots no longer listed once the cache is twice the fleet, and every robot
         once it holds more than ``KEPT``: a walk of a large fleet keeps one page's worth, not

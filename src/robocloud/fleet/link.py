@@ -70,6 +70,10 @@ class RobotLink(Protocol):
         """Seconds since each robot last said something new (its sent_at went forward), by id."""
         ...
 
+    def refused(self) -> dict[str, str]:
+        """Why the last state of a robot was refused, by id, until one of its states is accepted."""
+        ...
+
     def assign(self, robot_id: str, command: Assign) -> Ack:
         """Send a task to a robot; its acknowledgement, or not ok when it does not answer."""
         ...
@@ -367,6 +371,9 @@ class ZenohRobotLink:
     def ages(self) -> dict[str, float]:
         return self._latest.ages()
 
+    def refused(self) -> dict[str, str]:
+        return self._errors.refused()
+
     def on_state(self, listener: StateListener) -> Callable[[], None]:
         return self._latest.add_listener(listener)
 
@@ -446,6 +453,7 @@ class ZenohRobotLink:
             self._errors.refuse(key, "sent_at", late)
             return
         self._latest.accept(read)
+        self._errors.accepted([read.id])
 
     def _on_batch(self, sample: zenoh.Sample) -> None:
         """A gateway's batch: a JSON array of states of its robots (``keys.batch_key``)."""
@@ -490,3 +498,4 @@ class ZenohRobotLink:
             else:
                 mine.append(state)
         self._latest.accept_many(mine)
+        self._errors.accepted([state.id for state in mine])

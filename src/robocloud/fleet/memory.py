@@ -48,6 +48,7 @@ class MemoryRobotLink:
         self._silent: set[str] = set()
         self._seq = 0
         self.commands: list[tuple[str, Assign | Cancel | Start]] = []
+        self.refusals: dict[str, str] = {}  # robot -> why its states are refused (set by tests)
         for robot in robots:
             self.put(robot)
 
@@ -71,6 +72,9 @@ class MemoryRobotLink:
 
     def ages(self) -> dict[str, float]:
         return self._latest.ages()
+
+    def refused(self) -> dict[str, str]:
+        return dict(self.refusals)
 
     def on_state(self, listener: StateListener) -> Callable[[], None]:
         return self._latest.add_listener(listener)

@@ -7,6 +7,7 @@ __future__ import annotations`` here: FastAPI reads the handlers' annotations,
 which name that dependency, a local of ``mission_routes``.
 """
 
+import asyncio
 from collections.abc import AsyncIterator, Awaitable, Callable
 from typing import Annotated, Any
 
@@ -176,6 +177,14 @@ def mission_routes(
         """The application's mission, or 404 (as a dependency: before a stream starts)."""
         return await missions.get(application, mission_id)
 
+    async def mission_updates(
+        mission: Annotated[MissionPublic, Depends(existing_mission)], missions: Missions
+    ) -> AsyncIterator[asyncio.Queue[MissionPublic | None]]:
+        """The stream's queue in the mission feed, for as long as the response lasts
+        (as for requests: ``robocloud.iaas.feed`` says why not in the stream)."""
+        with missions.feed.subscribe(mission.id) as updates:
+            yield updates
+
     @router.get(
         "/v1/missions/{mission_id}/events",
         dependencies=secured,
@@ -188,9 +197,12 @@ def mission_routes(
         mission: Annotated[MissionPublic, Depends(existing_mission)],
         missions: Missions,
         application: Annotated[str, Depends(application_of)],
+        updates: Annotated[
+            asyncio.Queue[MissionPublic | None], Depends(mission_updates, scope="request")
+        ],
     ) -> AsyncIterator[ServerSentEvent]:
         """Server-sent events: the mission now, then after each change, until it is final."""
-        async for now in missions.events(application, mission.id):
+        async for now in missions.events(application, mission.id, updates):
             yield ServerSentEvent(event="mission", data=now.model_dump(mode="json"))
 
     return router

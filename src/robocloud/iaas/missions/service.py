@@ -230,8 +230,14 @@ class MissionService:
             await runner.cancel()
         return await self.get(application, mission_id)
 
-    def events(self, application: str, mission_id: str) -> AsyncIterator[MissionPublic]:
-        return self.feed.follow(mission_id, lambda: self.get(application, mission_id))
+    def events(
+        self,
+        application: str,
+        mission_id: str,
+        updates: asyncio.Queue[MissionPublic | None],
+    ) -> AsyncIterator[MissionPublic]:
+        """The mission now, then each change (``updates``: ``feed.subscribe``), until final."""
+        return self.feed.follow(updates, lambda: self.get(application, mission_id))
 
     def loan_ended(self, mission_id: str, robot: str, home: str, why: str) -> None:
         """A robot's home ended its loan to one of our missions on its own (any thread)."""

@@ -237,7 +237,7 @@ def test_a_refused_state_is_answered_on_the_robots_error_key_and_logged(
     assert first["field"] == "kind"
     assert first["error"] == "kind is missing."
     assert first["robot"] == "a-0100"
-    assert first["protocol"] == "1.1"
+    assert first["protocol"] == "1.2"
     mismatch = by_key["robocloud/cloud-a/robots/a-0101/error"]
     assert mismatch["field"] == "id"
     assert "names robot a-0102 but came on the key of a-0101" in str(mismatch["error"])
@@ -283,3 +283,29 @@ def test_a_forged_state_cannot_hide_a_robot(
         assert wait_until(lambda: link.states()["a-0100"].battery == 60.0)
         assert {r.id: r.status for r in link.robots()}["a-0100"] == "idle"
     told.undeclare()  # type: ignore[no-untyped-call]
+
+
+def test_a_robot_whose_states_are_refused_is_told_why_in_the_link(
+    network: tuple[zenoh.Session, zenoh.Session],
+) -> None:
+    """Issue 25: refused states left a robot silently offline; the link now keeps the reason."""
+    router, client = network
+    key = keys.state_key("cloud-a", "a-0200")
+    batch = keys.batch_key("cloud-a", "gw-1")
+    with ZenohRobotLink(router, "cloud-a") as link:
+        until_subscribed(client, key)
+        until_subscribed(client, batch)
+        client.put(key, state("a-0200", seq=1, sent_at=NOW + 900))  # never accepted
+        assert wait_until(lambda: "a-0200" in link.refused())
+        assert "900 s ahead of this IaaS's clock" in link.refused()["a-0200"]
+        assert "a-0200" not in link.states()
+        # A gateway's batch: the robot its state names is told, the others go on.
+        good, late = json.loads(state("a-0201")), json.loads(state("a-0202", sent_at=NOW - 900))
+        client.put(batch, json.dumps([good, late]).encode())
+        assert wait_until(lambda: "a-0202" in link.refused())
+        assert "behind this IaaS's clock" in link.refused()["a-0202"]
+        assert "a-0201" in link.states() and "a-0201" not in link.refused()
+        # One state accepted, and the reason is gone.
+        client.put(key, state("a-0200", seq=2))
+        assert wait_until(lambda: "a-0200" not in link.refused())
+        assert "a-0200" in link.states()

@@ -160,6 +160,31 @@ def test_the_key_is_checked_before_the_body_is_read(client: TestClient) -> None:
     assert client.post("/v1/requests", content=big, headers=A).status_code == 413
 
 
+def test_a_json_body_repeating_a_key_is_422_naming_it(client: TestClient) -> None:
+    """Python's json and pydantic kept the last of a repeated key in silence (issue 25)."""
+    import json
+
+    body = json.dumps(TASK)[:-1] + ', "max_robots": 1, "max_robots": 5}'
+    for content_type in ({"Content-Type": "application/json"}, {}):
+        answer = client.post("/v1/requests", content=body, headers={**A, **content_type})
+        assert answer.status_code == 422
+        assert answer.json()["detail"] == (
+            "max_robots: the key 'max_robots' is given more than once; give each key once."
+        )
+    nested = json.dumps(TASK).replace('{"grabber": 1}', '{"grabber": 1, "grabber": 2}')
+    answer = client.post("/v1/requests", content=nested,
+                         headers={**A, "Content-Type": "application/json"})
+    assert answer.status_code == 422
+    assert answer.json()["detail"].startswith("actuating.grabber: the key 'grabber'")
+    # Every route's body, not only the task's.
+    rid = client.post("/v1/requests", json=TASK, headers=A).json()["id"]
+    cancel = client.post(f"/v1/requests/{rid}/cancel", content=b'{"a": 1, "a": 1}',
+                         headers={**A, "Content-Type": "application/json"})
+    assert cancel.status_code == 422 and "'a'" in cancel.json()["detail"]
+    assert [r["id"] for r in client.get("/v1/requests", headers=A).json()["items"]] == [rid]
+    assert client.get(f"/v1/requests/{rid}", headers=A).json()["state"] != "canceled"
+
+
 def test_an_idempotency_key_reused_with_another_body_is_422_naming_the_header(
     client: TestClient,
 ) -> None:

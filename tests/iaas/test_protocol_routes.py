@@ -29,7 +29,7 @@ def test_the_protocol_page_tells_the_version_keys_and_this_clouds_timing() -> No
         answer = http.get("/protocol")  # no API key needed
     assert answer.status_code == 200
     info = answer.json()
-    assert info["version"] == "1.1"
+    assert info["version"] == "1.2"
     assert info["keys"] == {
         "state": "robocloud/cloud-a/robots/<id>/state",
         "cmd": "robocloud/cloud-a/robots/<id>/cmd",

@@ -147,3 +147,33 @@ def test_a_background_activity_ends_on_its_own() -> None:
     robot.start_background(Background("offline", math.inf))
     assert robot.advance(1e9, 3.0) == []
     assert robot.state(3.0).status == "offline"
+
+
+def held(request_id: str = "r-1") -> Assign:
+    return go(request_id=request_id).model_copy(update={"hold": True})
+
+
+def test_a_held_task_waits_at_the_place_until_its_start() -> None:
+    robot = make()
+    assert robot.state(0.0).protocol == "1.2"
+    assert robot.assign(held()).ok
+    changes = robot.advance(50.0, 1.0)  # 100 m at 2 m/s: there
+    assert [c.task.phase for c in changes if c.task] == ["waiting"]
+    assert robot.advance(500.0, 2.0) == []  # waits as long as it takes, no progress
+    waiting = robot.state(2.0)
+    assert waiting.status == "busy" and waiting.task is not None
+    assert (waiting.task.phase, waiting.task.progress) == ("waiting", pytest.approx(50 / 110))
+    assert not robot.start("r-2").ok  # another request's start
+    assert robot.start("r-1").ok and robot.dirty
+    assert robot.state(3.0).task.phase == "work"  # type: ignore[union-attr]
+    done = robot.advance(60.0, 4.0)
+    assert [c.task.phase for c in done if c.task] == ["done"]
+
+
+def test_a_start_before_arrival_makes_it_work_on_arrival() -> None:
+    robot = make()
+    assert not robot.start("r-1").ok  # no task yet
+    assert robot.assign(held()).ok
+    assert robot.start("r-1").ok
+    phases = [c.task.phase for c in robot.advance(110.0, 1.0) if c.task]
+    assert phases == ["work", "done"]

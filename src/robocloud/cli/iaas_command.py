@@ -210,6 +210,14 @@ def add_iaas_arguments(parser: argparse.ArgumentParser) -> None:
         "or done, before the loan ends (default 60)",
     )
     parser.add_argument(
+        "--header-timeout",
+        type=float,
+        default=10.0,
+        metavar="SECONDS",
+        help="an HTTP connection whose request line and headers are not complete this long "
+        "after it opened (or after the request's first byte) is closed (default 10)",
+    )
+    parser.add_argument(
         "--log-level", default="info", choices=("debug", "info", "warning", "error")
     )
     security.add_arguments(parser, router=True)
@@ -242,7 +250,7 @@ def iaas_command(args: argparse.Namespace) -> int:
         )
         app = create_app(settings, store=store)
         tune_runtime()
-        serve(app, listener, args.log_level, ready)
+        serve(app, listener, args.log_level, settings.header_timeout, ready)
     return 0
 
 
@@ -289,6 +297,7 @@ def iaas_settings(args: argparse.Namespace) -> Settings:
         "--overrun-min",
         "--stall-after",
         "--set-aside-for",
+        "--header-timeout",
     ):
         value = getattr(args, flag.removeprefix("--").replace("-", "_"))
         if not value > 0:  # also refuses nan
@@ -346,6 +355,7 @@ def iaas_settings(args: argparse.Namespace) -> Settings:
         overrun_min=args.overrun_min,
         stall_after=args.stall_after,
         set_aside_for=args.set_aside_for,
+        header_timeout=args.header_timeout,
         overlay_security=overlay_security,
     )
     return settings

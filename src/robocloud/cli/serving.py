@@ -19,6 +19,7 @@ from collections.abc import Iterator
 
 import uvicorn
 from fastapi import FastAPI
+from uvicorn.protocols.http.httptools_impl import HttpToolsProtocol
 
 from robocloud.errors import InvalidInput, RoboCloudError
 
@@ -50,14 +51,85 @@ def listen_socket(host: str, port: int, flag: str) -> Iterator[socket.socket]:
         yield sock
 
 
-def serve(app: FastAPI, listener: socket.socket, log_level: str, ready: str = "") -> None:
+def bounded_headers(header_timeout: float) -> type[HttpToolsProtocol]:
+    """uvicorn's HTTP protocol (httptools), but a request's headers come within a bound.
+
+    uvicorn times only the silence between two requests of a connection
+    (keep-alive, 5 s): a client that opens a connection and sends half a
+    request line, or a header a minute (slowloris), held it for ever. Here
+    each request's line and headers must be complete ``header_timeout``
+    seconds after the connection opened (the first request) or after the
+    request's first byte (the next ones on a kept-alive connection); the
+    connection is closed otherwise. The body and the answer (an event stream
+    lasts) are not timed.
+    """
+
+    class BoundedHeaders(HttpToolsProtocol):
+        def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
+            self._header_timer: asyncio.TimerHandle | None = None
+            super().connection_made(transport)
+            self._arm()
+
+        def on_message_begin(self) -> None:
+            super().on_message_begin()
+            if self._header_timer is None:  # a later request: the first one is already timed
+                self._arm()
+
+        def on_headers_complete(self) -> None:
+            self._disarm()
+            super().on_headers_complete()
+
+        def connection_lost(self, exc: Exception | None) -> None:
+            self._disarm()
+            super().connection_lost(exc)
+
+        def _arm(self) -> None:
+            self._header_timer = self.loop.call_later(header_timeout, self._headers_late)
+
+        def _disarm(self) -> None:
+            if self._header_timer is not None:
+                self._header_timer.cancel()
+                self._header_timer = None
+
+        def _headers_late(self) -> None:
+            self._header_timer = None
+            if not self.transport.is_closing():
+                log.debug(
+                    "closed a connection from %s: its request's headers were not complete "
+                    "within %g s",
+                    self.client,
+                    header_timeout,
+                )
+                self.transport.close()
+
+    return BoundedHeaders
+
+
+def server_config(app: FastAPI, log_level: str, header_timeout: float) -> uvicorn.Config:
+    """uvicorn's configuration for robocloud's servers: headers within ``header_timeout`` s."""
+    return uvicorn.Config(
+        app,
+        log_level=log_level,
+        access_log=False,
+        lifespan="off",
+        http=bounded_headers(header_timeout),
+    )
+
+
+def serve(
+    app: FastAPI,
+    listener: socket.socket,
+    log_level: str,
+    header_timeout: float,
+    ready: str = "",
+) -> None:
     """Enter ``app``'s lifespan, serve on ``listener`` until SIGINT or SIGTERM, close it all.
 
-    ``ready`` is logged (INFO) once the lifespan is open, as the server starts.
+    ``ready`` is logged (INFO) once the lifespan is open, as the server starts;
+    a connection whose request's headers are not complete within
+    ``header_timeout`` seconds is closed (``bounded_headers``).
     """
-    config = uvicorn.Config(
-        app, log_level=log_level, access_log=False, lifespan="off", http="httptools"
-    )
+    config = server_config(app, log_level, header_timeout)
     with _sigterm_as_interrupt():
         asyncio.run(_serve(app, config, listener, ready))
 

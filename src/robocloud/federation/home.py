@@ -37,12 +37,13 @@ import json
 import logging
 import threading
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Collection, Iterable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from datetime import datetime, timedelta
 
 from robocloud.domain import Robot, is_final
+from robocloud.domain.mission_ids import holder_of
 from robocloud.errors import RoboCloudError
 from robocloud.federation.capabilities import Announced
 from robocloud.federation.lending import (
@@ -76,7 +77,7 @@ from robocloud.federation.messages import (
     StatusReply,
 )
 from robocloud.fleet.link import RobotLink
-from robocloud.fleet.messages import Ack, State
+from robocloud.fleet.messages import Ack, Assign, State
 from robocloud.storage import Loan, RequestStore
 from robocloud.storage.rules import utc_now
 
@@ -106,7 +107,10 @@ def _stray_commands(reservation: Reservation) -> str | None:
     """Why a reservation's commands do not fit it (each for one of its robots, for its request)."""
     robots = set(reservation.robots)
     for dispatch in reservation.dispatch:
-        if dispatch.robot not in robots or dispatch.command.request_id != reservation.request_id:
+        if (
+            dispatch.robot not in robots
+            or holder_of(dispatch.command.request_id) != reservation.request_id
+        ):
             return (
                 f"the command for {dispatch.robot} is not for a robot and request of "
                 "this reservation."
@@ -117,13 +121,13 @@ def _stray_commands(reservation: Reservation) -> str | None:
 
 
 def working_for(state: State | None, request_id: str) -> bool:
-    """Whether the robot reports working on the request, online."""
+    """Whether the robot reports working on the request (a task of it, for a mission), online."""
     return (
         state is not None
         and state.status != "offline"
         and state.task is not None
-        and state.task.request_id == request_id
-        and state.task.phase in ("travel", "work")
+        and holder_of(state.task.request_id) == request_id
+        and state.task.phase in ("travel", "waiting", "work")
     )
 
 
@@ -142,6 +146,8 @@ class Home:
         reserve_rate: float = RESERVE_RATE,
         set_aside: Callable[[str], Aside | None] = never_aside,
         coalition_of: Callable[[str], list[str]] = lambda request_id: [],
+        missions: Callable[[str], tuple[bool, bool] | None] = lambda request_id: None,
+        kept: Callable[[], Collection[str]] = frozenset,
         monotonic: Callable[[], float] = time.monotonic,
         clock: Callable[[], datetime] = utc_now,
     ) -> None:
@@ -163,6 +169,11 @@ class Home:
         # The robots working for one of this cloud's requests now (the IaaS's
         # RobotRoutes): what another cloud that lent some is told.
         self.coalition_of = coalition_of
+        # This cloud's missions (kept in memory, not in the store): for a
+        # mission id, (known, final), else None; and the robots they hold now,
+        # which this home neither offers nor lends.
+        self.missions = missions
+        self.kept = kept
         self._clock = clock
         self._lock = threading.Lock()
         self._lent: dict[str, _Lent] = {}
@@ -192,7 +203,7 @@ class Home:
 
     def info(self) -> CloudInfo:
         robots = self.link.robots()
-        held = self.store.reservations()
+        held = self._held()
         idle = sum(r.status == "idle" and r.id not in held for r in robots)
         offline = sum(r.status == "offline" for r in robots)
         self.announced.learn_robots(robots)
@@ -218,7 +229,7 @@ class Home:
         # already in the view, so they need not travel.
         if query.origin == self.cloud or not self.trusts(query.origin):
             return self._idle_reply([])
-        held = self.store.reservations()
+        held = self._held()
         wanted = set(query.capabilities)
         everyone = self.link.robots()
         aside = self.set_aside
@@ -246,7 +257,7 @@ class Home:
         return b'{"cloud":%s,"robots":[%s]}' % (self._cloud_json, b",".join(parts))
 
     def fleet(self) -> FleetReply:
-        held = self.store.reservations()
+        held = self._held()
         states = self.link.states()
         out = []
         for robot in self.link.robots()[:MAX_ITEMS]:
@@ -269,6 +280,14 @@ class Home:
         """This cloud as the origin: what it says of its requests to a home."""
         out = []
         for request_id in query.request_ids:
+            mission = self.missions(request_id)
+            if mission is not None:
+                known, final = mission
+                robots = self.coalition_of(request_id) if known and not final else []
+                out.append(
+                    RequestStatus(request_id=request_id, known=known, final=final, robots=robots)
+                )
+                continue
             record = self.store.get(request_id)
             if record is None:
                 out.append(RequestStatus(request_id=request_id, known=False))
@@ -296,8 +315,20 @@ class Home:
             refusal, lease = self._bounds(origin, reservation)
         if refusal:
             return ReserveReply(taken=list(reservation.robots), error=refusal)
+        kept = self.kept()
+        taken = [r for r in reservation.robots if r in kept]  # held by a mission of ours
+        if taken:
+            return ReserveReply(taken=taken)
         taken = self.store.lend(origin, reservation.request_id, reservation.robots, lease)
         if taken:
+            return ReserveReply(taken=taken)
+        kept = self.kept()
+        taken = [r for r in reservation.robots if r in kept]
+        if taken:
+            # A mission of ours took one between the check and the loan: it
+            # reads the store after taking, so one of the two always sees the other.
+            why = "a mission of this cloud took it meanwhile"
+            self.store.end_loans(origin, reservation.request_id, reservation.robots, why)
             return ReserveReply(taken=taken)
         self._undispatched.record(origin, reservation.robots, lease)
         self._lent_now(origin, reservation.request_id, reservation.robots, lease)
@@ -364,10 +395,14 @@ class Home:
         if refusal:
             return Ack.refuse(robot, request_id, refusal)
         holder = self._holder(robot)
-        if holder != (origin, request_id) or self.lent_for(robot) is None:
-            error = f"robot {robot} is not lent to request {request_id} of {origin}."
+        # A mission's robot is lent to the mission and commanded for its tasks.
+        lent_to = holder_of(request_id)
+        if holder != (origin, lent_to) or self.lent_for(robot) is None:
+            error = f"robot {robot} is not lent to request {lent_to} of {origin}."
             self._refuse(origin, "dispatch", request_id, [robot], error)
             return Ack.refuse(robot, request_id, error)
+        if not isinstance(command, Assign):
+            return self.link.start(robot, request_id)
         ack = self.link.assign(robot, command)
         if ack.ok:
             self._undispatched.dispatched(origin, robot)
@@ -375,7 +410,7 @@ class Home:
             # written: the origin confirms at once, and the robot's own state
             # tells the same after a restart of this IaaS.
             with self._lock:
-                self._dispatched.add((robot, request_id))
+                self._dispatched.add((robot, lent_to))
         return ack
 
     def cancel(self, origin: str, release: Release) -> Done:
@@ -391,7 +426,7 @@ class Home:
             self._stop_strays(request_id, release.robots or [])
             return self._nothing_lent(origin, "cancel", release)
         for robot in robots:
-            self.link.cancel(robot, request_id)
+            self.stop(robot, request_id)
         why = release.why or f"canceled by {origin}"
         self.forget(self.store.end_loans(origin, request_id, robots, why))
         return Done()
@@ -418,6 +453,19 @@ class Home:
             for loan in self.store.untold_loans(origin)[:MAX_ITEMS]
         ]
         return LoanReply(cloud=self.cloud, held=len(self.store.loans(origin)), ended=ended)
+
+    def stop(self, robot: str, request_id: str) -> None:
+        """Tell a robot to stop working for ``request_id``: for a mission, the task it is on."""
+        state = self.link.state(robot)
+        task = state.task if state is not None else None
+        on = task.request_id if task is not None else request_id
+        self.link.cancel(robot, on if holder_of(on) == request_id else request_id)
+
+    def _held(self) -> set[str]:
+        """The robots this cloud holds: reserved or lent in its store, or kept by its missions."""
+        held = set(self.store.reservations())
+        held.update(self.kept())
+        return held
 
     # -- checks ------------------------------------------------------------------------
 
@@ -518,7 +566,7 @@ class Home:
         for robot in robots:
             if self._holder(robot) is None and working_for(states.get(robot), request_id):
                 log.info("stopping %s, which still works for request %s", robot, request_id)
-                self.link.cancel(robot, request_id)
+                self.stop(robot, request_id)
 
     def _nothing_lent(self, origin: str, what: str, release: Release) -> Done:
         """A release or cancel that ended nothing: harmless, unless it aimed at another's loans."""

@@ -49,7 +49,7 @@ from robocloud.domain.records import (
     may_hold_control_characters,
 )
 from robocloud.domain.robot import Name
-from robocloud.fleet.messages import Ack, Assign
+from robocloud.fleet.messages import Ack, Assign, Start
 
 _WIRE = ConfigDict(extra="ignore", frozen=True)
 
@@ -144,7 +144,8 @@ class Dispatch(BaseModel):
     model_config = _WIRE
 
     robot: Name
-    command: Assign
+    # A start (robot protocol 1.2) goes through the home like an assign.
+    command: Annotated[Assign | Start, Field(discriminator="type")]
 
 
 class Reservation(BaseModel):

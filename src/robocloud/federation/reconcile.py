@@ -143,7 +143,7 @@ class LoanReconciler:
                 f"{origin} was unreachable for {self.origin_deadline:g} s "
                 f"while robot {loan.robot} was idle or done"
             )
-            self.link.cancel(loan.robot, loan.request_id)  # harmless when it has no task
+            self.home.stop(loan.robot, loan.request_id)  # harmless when it has no task
             ended = self.store.end_loans(
                 origin, loan.request_id, [loan.robot], why, tell_origin=True
             )
@@ -197,7 +197,7 @@ class LoanReconciler:
                 continue  # not answered: ask again next time
             if not status.known or status.final:
                 for robot in robots:
-                    self.link.cancel(robot, request_id)
+                    self.home.stop(robot, request_id)
                 why = f"{origin} says request {request_id} is over"
                 self._forget(self.store.end_loans(origin, request_id, robots, why))
                 continue

@@ -33,7 +33,7 @@ from robocloud.errors import RoboCloudError
 from robocloud.federation.messages import Dispatch, IdleQuery, Release, Reservation
 from robocloud.federation.overlay import Gathered, Overlay
 from robocloud.fleet.link import RobotLink, StateListener
-from robocloud.fleet.messages import Ack, Assign
+from robocloud.fleet.messages import Ack, Assign, Start
 from robocloud.selection.columns import Candidates, candidates
 from robocloud.storage import RequestStore
 
@@ -453,6 +453,16 @@ class FederationView:
         if ack.ok:
             self.overlay.watch(cloud, robot)
         return ack
+
+    def start(self, robot: str, cloud: str, request_id: str) -> Ack:
+        """Protocol 1.2: a held robot starts its task's work (through its home if lent)."""
+        if cloud == self.cloud:
+            return self.link.start(robot, request_id)
+        if self.overlay is None:
+            return Ack.refuse(robot, request_id, f"{cloud} is not reachable.")
+        return self.overlay.dispatch(
+            cloud, Dispatch(robot=robot, command=Start(request_id=request_id))
+        )
 
     @contextlib.contextmanager
     def _giving_back(self, robots: list[str]) -> Iterator[None]:

@@ -47,7 +47,7 @@ class WireCapability(msgspec.Struct, frozen=True, forbid_unknown_fields=True, gc
 
 class WireTask(msgspec.Struct, frozen=True, gc=False):
     request_id: _Name
-    phase: Literal["travel", "work", "done", "failed"]
+    phase: Literal["travel", "waiting", "work", "done", "failed"]
     progress: Annotated[float, Meta(ge=0.0, le=1.0)]
     capabilities: list[_Name]
     reason: Annotated[str, Meta(max_length=300)] | None = None  # protocol 1.1
@@ -71,6 +71,7 @@ class WireState(msgspec.Struct, gc=False):
     sent_at: float
     task: WireTask | None = None
     last_task: WireTask | None = None
+    protocol: Annotated[str, Meta(max_length=16, pattern=r"^[0-9]+\.[0-9]+$")] | None = None  # 1.2
 
 
 class _Id(msgspec.Struct):
@@ -269,6 +270,7 @@ class StateReader:
                 "last_task": last,
                 "seq": wire.seq,
                 "sent_at": wire.sent_at,
+                "protocol": wire.protocol,
             },
             _STATE_FIELDS,
         )

@@ -26,7 +26,7 @@ from robocloud.errors import Unavailable
 from robocloud.fleet import keys
 from robocloud.fleet.columns import StateColumns
 from robocloud.fleet.ingest import Refusal, StateReader
-from robocloud.fleet.messages import Ack, Assign, Cancel, State
+from robocloud.fleet.messages import Ack, Assign, Cancel, Start, State
 from robocloud.fleet.state_errors import (
     MAX_BATCH_BYTES,
     MAX_BATCH_STATES,
@@ -70,12 +70,20 @@ class RobotLink(Protocol):
         """Seconds since each robot last said something new (its sent_at went forward), by id."""
         ...
 
+    def refused(self) -> dict[str, str]:
+        """Why the last state of a robot was refused, by id, until one of its states is accepted."""
+        ...
+
     def assign(self, robot_id: str, command: Assign) -> Ack:
         """Send a task to a robot; its acknowledgement, or not ok when it does not answer."""
         ...
 
     def cancel(self, robot_id: str, request_id: str) -> Ack:
         """Stop a robot working on ``request_id``."""
+        ...
+
+    def start(self, robot_id: str, request_id: str) -> Ack:
+        """Protocol 1.2: let a robot held at its task's place start working on ``request_id``."""
         ...
 
     def on_state(self, listener: StateListener) -> Callable[[], None]:
@@ -363,6 +371,9 @@ class ZenohRobotLink:
     def ages(self) -> dict[str, float]:
         return self._latest.ages()
 
+    def refused(self) -> dict[str, str]:
+        return self._errors.refused()
+
     def on_state(self, listener: StateListener) -> Callable[[], None]:
         return self._latest.add_listener(listener)
 
@@ -371,6 +382,9 @@ class ZenohRobotLink:
 
     def cancel(self, robot_id: str, request_id: str) -> Ack:
         return self._command(robot_id, Cancel(request_id=request_id))
+
+    def start(self, robot_id: str, request_id: str) -> Ack:
+        return self._command(robot_id, Start(request_id=request_id))
 
     def count(self) -> int:
         """How many robots are heard from."""
@@ -386,7 +400,7 @@ class ZenohRobotLink:
     def __exit__(self, *_exc: object) -> None:
         self.close()
 
-    def _command(self, robot_id: str, command: Assign | Cancel) -> Ack:
+    def _command(self, robot_id: str, command: Assign | Cancel | Start) -> Ack:
         replies = self._session.get(
             keys.cmd_key(self._cloud, robot_id),
             payload=command.model_dump_json(),
@@ -439,6 +453,7 @@ class ZenohRobotLink:
             self._errors.refuse(key, "sent_at", late)
             return
         self._latest.accept(read)
+        self._errors.accepted([read.id])
 
     def _on_batch(self, sample: zenoh.Sample) -> None:
         """A gateway's batch: a JSON array of states of its robots (``keys.batch_key``)."""
@@ -483,3 +498,4 @@ class ZenohRobotLink:
             else:
                 mine.append(state)
         self._latest.accept_many(mine)
+        self._errors.accepted([state.id for state in mine])

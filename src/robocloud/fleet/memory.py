@@ -19,7 +19,7 @@ from robocloud.domain import Robot
 from robocloud.errors import NotFound
 from robocloud.fleet import behaviour
 from robocloud.fleet.link import LatestStates, StateListener
-from robocloud.fleet.messages import Ack, Assign, Cancel, Phase, State, TaskProgress
+from robocloud.fleet.messages import Ack, Assign, Cancel, Phase, Start, State, TaskProgress
 from robocloud.selection.columns import FleetColumns
 
 
@@ -31,6 +31,7 @@ class _Job:
     travel: float  # seconds
     work: float  # seconds
     elapsed: float = 0.0
+    held: bool = False  # protocol 1.2: waits at the location until started
 
 
 class MemoryRobotLink:
@@ -46,7 +47,8 @@ class MemoryRobotLink:
         self._jobs: dict[str, _Job] = {}
         self._silent: set[str] = set()
         self._seq = 0
-        self.commands: list[tuple[str, Assign | Cancel]] = []
+        self.commands: list[tuple[str, Assign | Cancel | Start]] = []
+        self.refusals: dict[str, str] = {}  # robot -> why its states are refused (set by tests)
         for robot in robots:
             self.put(robot)
 
@@ -70,6 +72,9 @@ class MemoryRobotLink:
 
     def ages(self) -> dict[str, float]:
         return self._latest.ages()
+
+    def refused(self) -> dict[str, str]:
+        return dict(self.refusals)
 
     def on_state(self, listener: StateListener) -> Callable[[], None]:
         return self._latest.add_listener(listener)
@@ -95,7 +100,12 @@ class MemoryRobotLink:
             start = (state.position[0], state.position[1])
             metres = behaviour.distance(start, command.location)
             job = _Job(
-                command, start, metres, metres / state.speed, command.work_time(state.capabilities)
+                command,
+                start,
+                metres,
+                metres / state.speed,
+                command.work_time(state.capabilities),
+                held=command.hold,
             )
             self._jobs[robot_id] = job
             self._publish(state, status="busy", task=self._progress(job, "travel"), last_task=None)
@@ -115,6 +125,17 @@ class MemoryRobotLink:
         if job is not None:
             del self._jobs[robot_id]
             self._publish(state, status="idle", task=None)
+        return Ack(ok=True, robot=robot_id, request_id=request_id)
+
+    def start(self, robot_id: str, request_id: str) -> Ack:
+        self.commands.append((robot_id, Start(request_id=request_id)))
+        state = self._answering(robot_id)
+        if state is None:
+            return Ack.no_answer(robot_id, request_id)
+        job = self._jobs.get(robot_id)
+        if job is None or job.command.request_id != request_id:
+            return Ack.refuse(robot_id, request_id, f"robot {robot_id} is not on {request_id}.")
+        job.held = False
         return Ack(ok=True, robot=robot_id, request_id=request_id)
 
     def close(self) -> None:
@@ -143,6 +164,11 @@ class MemoryRobotLink:
                     self._publish(state, task=None)
                 continue
             job.elapsed += seconds
+            if job.held and job.elapsed >= job.travel:
+                job.elapsed = job.travel  # there, waiting for its start
+                x, y = job.command.location
+                self._publish(state, position=[x, y], task=self._progress(job, "waiting"))
+                continue
             if job.elapsed >= job.travel + job.work:
                 del self._jobs[robot_id]
                 x, y = job.command.location

@@ -42,6 +42,11 @@ On ``assign`` the robot, if idle, becomes ``busy``, drives straight to
 named (the longest of their times when ``parallel``, their sum when
 ``sequential``). On ``cancel`` it stops where it is and becomes idle.
 
+Protocol 1.2 adds, for robots whose state says ``"protocol": "1.2"``: an
+assign with ``"hold": true`` (drive there, report phase ``waiting``, work
+only after ``{"type": "start", "request_id": "r-17"}``), which is how a
+mission's coalition starts together (docs/protocol.md).
+
 Ack: the robot answers every command with one reply on its cmd key::
 
     {"ok": true, "robot": "a-0001", "request_id": "r-17", "error": null}
@@ -72,10 +77,13 @@ from robocloud.domain.task import Execution
 # The robot protocol's version, MAJOR.MINOR. A new MINOR only adds optional
 # fields or values a receiver may ignore; a new MAJOR changes the meaning of a
 # message. It is in each schema's $id and served by the IaaS at /protocol.
-PROTOCOL_VERSION = "1.1"
+PROTOCOL_VERSION = "1.2"
+# Since 1.2: an assign may say ``hold`` (go, wait there for ``start``); a
+# robot that understands it says ``"protocol": "1.2"`` (or later) in its state.
+HOLD_SINCE = (1, 2)
 
-Phase = Literal["travel", "work", "done", "failed"]
-PHASES: tuple[str, ...] = ("travel", "work", "done", "failed")
+Phase = Literal["travel", "waiting", "work", "done", "failed"]
+PHASES: tuple[str, ...] = ("travel", "waiting", "work", "done", "failed")
 FINISHED_PHASES: frozenset[str] = frozenset({"done", "failed"})
 
 _WIRE = ConfigDict(extra="ignore", frozen=True)
@@ -88,7 +96,8 @@ class TaskProgress(BaseModel):
 
     request_id: Name = Field(description="the request of the assign command")
     phase: Phase = Field(
-        description="travel (driving to the location), work (using the capabilities there), "
+        description="travel (driving to the location), waiting (there, held until the "
+        "start command; protocol 1.2), work (using the capabilities there), "
         "done (finished, idle at the location) or failed (it cannot finish; status offline)"
     )
     progress: Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)] = Field(
@@ -139,6 +148,16 @@ class State(BaseModel):
         "a restart"
     )
     sent_at: Finite = Field(description="unix time, seconds, when the robot sent it")
+    protocol: Annotated[str, Field(max_length=16, pattern=r"^[0-9]+\.[0-9]+$")] | None = Field(
+        None,
+        description="the protocol version the robot speaks, MAJOR.MINOR (since 1.2; none: "
+        "1.0 or 1.1). From 1.2 on the IaaS may send it an assign with hold and a start",
+    )
+
+    @property
+    def holds(self) -> bool:
+        """Whether the robot understands an assign's ``hold`` and the ``start`` command."""
+        return speaks(self.protocol, HOLD_SINCE)
 
     def to_robot(self, status: RobotStatus | None = None) -> Robot:
         """The docs/model.md robot this state describes, with ``status`` instead when given."""
@@ -171,6 +190,13 @@ class Assign(BaseModel):
         description="parallel: work for the longest time of the capabilities; sequential: "
         "for the sum of their times",
     )
+    hold: bool = Field(
+        False,
+        description="protocol 1.2: drive to the location, report phase waiting there and "
+        "work only once a start command for this request came (a start that came before "
+        "the robot arrived: it works on arrival). Sent only to robots whose state says "
+        "protocol 1.2 or later",
+    )
 
     def work_time(self, capabilities: Mapping[str, Capability]) -> float:
         """Seconds of work at the location for a robot with ``capabilities`` (docs/model.md exec_i).
@@ -193,8 +219,28 @@ class Cancel(BaseModel):
     request_id: Name = Field(description="the request to stop working on")
 
 
-Command = Annotated[Assign | Cancel, Field(discriminator="type")]
-COMMAND: TypeAdapter[Assign | Cancel] = TypeAdapter(Command)
+class Start(BaseModel):
+    """Protocol 1.2: begin the work of ``request_id``, held by its assign's ``hold``."""
+
+    model_config = _WIRE
+
+    type: Literal["start"] = "start"
+    request_id: Name = Field(description="the request whose held task the robot starts")
+
+
+Command = Annotated[Assign | Cancel | Start, Field(discriminator="type")]
+COMMAND: TypeAdapter[Assign | Cancel | Start] = TypeAdapter(Command)
+
+
+def speaks(protocol: str | None, since: tuple[int, int]) -> bool:
+    """Whether a robot announcing ``protocol`` (MAJOR.MINOR, or None) speaks ``since`` or later."""
+    if protocol is None:
+        return False
+    major, _, minor = protocol.partition(".")
+    try:
+        return (int(major), int(minor)) >= since and int(major) == since[0]
+    except ValueError:
+        return False
 
 
 class Ack(BaseModel):

@@ -78,6 +78,21 @@ class StateErrors:
         self._logged: dict[str, tuple[str, float]] = {}  # key -> (sentence, when logged)
         self._window = (0.0, 0)  # (second it counts, answers sent in it)
         self.answers = 0  # answers sent so far (for tests and the log)
+        # robot -> why its last state was refused, until one of its states is
+        # accepted (GET /v1/robots shows it); at most MAX_TRACKED robots.
+        self._refused: dict[str, str] = {}
+
+    def refused(self) -> dict[str, str]:
+        """Why each robot's last state was refused, for robots with no state accepted since."""
+        with self._lock:
+            return dict(self._refused)
+
+    def accepted(self, robots: list[str]) -> None:
+        """States of these robots were accepted: their refusals are over."""
+        if self._refused:  # mostly empty: nothing to lock for
+            with self._lock:
+                for robot in robots:
+                    self._refused.pop(robot, None)
 
     def too_large(self, key: str, size: int) -> None:
         self.refuse(
@@ -118,6 +133,8 @@ class StateErrors:
         with self._lock:
             log = self._due_log(key, sentence, now)
             answer = robot is not None and self._due_answer(robot, now)
+            if robot and (robot in self._refused or len(self._refused) < MAX_TRACKED):
+                self._refused[robot] = sentence
         if log:
             logger.warning("refused a state on %s (field %s): %s", key, field, sentence)
         if answer and robot is not None:

@@ -24,7 +24,7 @@ import zenoh
 from robocloud.errors import describe_validation_errors
 from robocloud.fleet import keys
 from robocloud.fleet.ingest import encode_batch
-from robocloud.fleet.messages import COMMAND, Ack, Assign, Cancel, State
+from robocloud.fleet.messages import COMMAND, Ack, Assign, Cancel, Start, State
 
 log = logging.getLogger(__name__)
 
@@ -168,6 +168,11 @@ def _reply(cloud: str, robot: str, query: zenoh.Query, on_command: CommandHandle
         sentence = describe_validation_errors(error.errors(), prefix="command").message
         ack = Ack.refuse(robot, None, sentence)
     else:
+        if isinstance(command, Start):  # the gateways speak protocol 1.1: no held tasks
+            ack = Ack.refuse(robot, command.request_id, f"robot {robot} does not hold tasks "
+                             "(protocol 1.1): it has no start command.")
+            query.reply(keys.cmd_key(cloud, robot), ack.model_dump_json(), encoding=_JSON)
+            return
         try:
             ack = on_command(robot, command)
         except Exception as error:  # the gateway must answer, whatever happened

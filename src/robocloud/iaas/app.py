@@ -55,7 +55,9 @@ from robocloud.iaas.cloud import build_cloud
 from robocloud.iaas.config import Settings
 from robocloud.iaas.docs_ui import install_docs
 from robocloud.iaas.elsewhere import Elsewhere
+from robocloud.iaas.feed import Updates
 from robocloud.iaas.metrics import IaasMetrics
+from robocloud.iaas.missions.api import mission_routes
 from robocloud.iaas.models import (
     ErrorBody,
     Health,
@@ -70,6 +72,7 @@ from robocloud.iaas.robot_list import (
     CURSOR_PATTERN,
     DEFAULT_LIMIT,
     MAX_LIMIT,
+    PAGE_BYTES,
     RobotFilter,
     RobotJson,
     build_page,
@@ -78,9 +81,11 @@ from robocloud.iaas.robot_list import (
     local_rows,
     matches,
     next_link,
+    refused_rows,
     remote_rows,
 )
 from robocloud.iaas.service import REQUEST_ID, RequestService
+from robocloud.json_body import repeated_key
 from robocloud.storage import RequestRecord, RequestStore, StoreUnavailable
 
 log = logging.getLogger(__name__)
@@ -163,13 +168,17 @@ def create_app(
     app.add_middleware(Gate, keys=settings.api_keys, limit=settings.max_body_bytes)
     routes = _routes()
     app.include_router(routes)
+    missions = mission_routes(application_of, SECURED, answers)
+    app.include_router(missions)
     app.openapi = lambda: _openapi(app)  # type: ignore[method-assign]
     install_docs(app)
     install_protocol(app)
     # Every route, for Allow and the OpenAPI's answers (those of included
     # routers are not in app.routes as routes of their own).
     app.state.routes = [
-        r for r in (*routes.routes, *app.router.routes) if isinstance(r, APIRoute)
+        r
+        for r in (*routes.routes, *missions.routes, *app.router.routes)
+        if isinstance(r, APIRoute)
     ]
     return app
 
@@ -289,6 +298,19 @@ async def existing_request(
 
 
 OwnedRequest = Annotated[RequestRecord, Depends(existing_request)]
+
+
+async def request_updates(record: OwnedRequest, service: Service) -> AsyncIterator[Updates]:
+    """The stream's queue in the request feed, for as long as the response lasts.
+
+    A dependency with ``yield``: FastAPI ends it when the response ends, the
+    client gone included (``robocloud.iaas.feed`` says why not in the stream).
+    """
+    with service.feed.subscribe(record.id) as updates:
+        yield updates
+
+
+RequestUpdates = Annotated[Updates, Depends(request_updates, scope="request")]
 
 
 def _routes() -> Any:
@@ -422,10 +444,11 @@ def _routes() -> Any:
         record: OwnedRequest,
         service: Service,
         application: Application,
+        updates: RequestUpdates,
     ) -> AsyncIterator[ServerSentEvent]:
         """Server-sent events: the request now, then after each change, until it is final."""
         # The dependency answered 404 for an unknown request before the stream started.
-        async for update in service.events(application, record.id):
+        async for update in service.events(application, record.id, updates):
             yield ServerSentEvent(
                 event="request", data=request_public(update, service).model_dump(mode="json")
             )
@@ -479,7 +502,8 @@ def _routes() -> Any:
                 ge=1,
                 le=MAX_LIMIT,
                 description=f"robots a page ({DEFAULT_LIMIT} unless said, at most {MAX_LIMIT}); "
-                "the Link header (rel=next) names the next page",
+                f"a page also stops at the robot that takes it past {PAGE_BYTES} bytes of "
+                "JSON; the Link header (rel=next) names the next page",
             ),
         ] = DEFAULT_LIMIT,
         cursor: Annotated[
@@ -509,6 +533,10 @@ def _routes() -> Any:
         """
         after = decode_cursor(cursor) if cursor is not None else None
         wanted = RobotFilter(status, tuple(capability or ()), cloud)
+
+        def owns(request_id: str) -> bool:  # only its owner sees a request id and progress
+            return service.owner_of(request_id) == application
+
         link = service.link
         try:
             held = service.store.reservations()
@@ -516,21 +544,29 @@ def _routes() -> Any:
             service.store_failed(service.store.reservations)
             raise
         local = local_rows(link.robots(), held, wanted)
+        states = link.states()
+        refused = link.refused()  # robots whose states are refused, with the reason
         remote: list[tuple[tuple[str, str], dict[str, Any]]] = []
+        if refused and (cloud is None or cloud == service.settings.cloud):
+            remote = refused_rows(service.settings.cloud, refused, states, wanted)
         overlay: ZenohOverlay | None = request.app.state.overlay
         if scope == "federation" and overlay is not None and cloud != service.settings.cloud:
             fleets = await asyncio.to_thread(overlay.fleets)
-            remote = remote_rows((f.robots for f in fleets), wanted, service.settings.cloud)
+            remote += remote_rows(
+                (f.robots for f in fleets), wanted, service.settings.cloud, owns
+            )
         page = build_page(
             local,
             remote,
             after,
             limit,
-            link.states(),
+            states,
             link.ages(),
             held,
             robot_json_cache,
             service.routes.aside,
+            owns,
+            refused=refused,
         )
         etag = etag_of(page)
         headers = {
@@ -579,10 +615,20 @@ def allowed_methods(request: Request) -> list[str]:
 NOT_AN_OBJECT = frozenset({"model_attributes_type", "model_type", "dict_type"})
 
 
+def _media_type(headers: Headers) -> str:
+    return headers.get("content-type", "").split(";", 1)[0].strip().lower()
+
+
 def _says_json(request: Request) -> bool:
     """Whether the request's Content-Type is JSON (``application/json`` or ``+json``)."""
-    media = request.headers.get("content-type", "").split(";", 1)[0].strip().lower()
+    media = _media_type(request.headers)
     return media == "application/json" or media.endswith("+json")
+
+
+def _json_body(headers: Headers) -> bool:
+    """Whether FastAPI reads the body as JSON: its Content-Type says so, or there is none."""
+    media = _media_type(headers)
+    return not media or media == "application/json" or media.endswith("+json")
 
 
 def _install_error_handlers(app: FastAPI) -> None:
@@ -644,7 +690,7 @@ def _install_error_handlers(app: FastAPI) -> None:
 
 class Gate:
     """Checks what needs no body first: the API key on ``/v1/`` and ``/metrics`` (401), then the
-    body's size (413).
+    body's size (413), then a JSON body's repeated keys (422, ``robocloud.json_body``).
 
     A pure ASGI middleware, so a request without a key is refused before its
     body is read or parsed, and a body without a length is read at most
@@ -694,7 +740,7 @@ class Gate:
             )
             await _error(refusal)(scope, receive, send)
             return
-        if length is None and scope["method"] in ("POST", "PUT", "PATCH"):
+        if scope["method"] in ("POST", "PUT", "PATCH"):
             body = b""
             more = True
             while more:
@@ -709,6 +755,11 @@ class Gate:
                     )
                     await _error(refusal)(scope, receive, send)
                     return
+            # Every JSON body of every route: a repeated key is a 422 naming it.
+            repeated = repeated_key(body) if body and _json_body(headers) else None
+            if repeated is not None:
+                await _error(repeated)(scope, receive, send)
+                return
             receive = _replay(body, receive)
         await self.app(scope, receive, send)
 

@@ -13,6 +13,8 @@ afterwards. The order is the dependency graph, bottom up::
             |
            RequestService (the requests' actors)
             |
+           MissionService (the missions' runners; its book, made first, tells Home
+            |              which robots missions keep and which missions are known)
            LoanReconciler (loans kept true both ways; told of ended loans by the service)
 
 ``create_app`` enters it in its lifespan; ``robocloud iaas``, ``make run`` and
@@ -38,6 +40,8 @@ from robocloud.iaas.capabilities import KnownCapabilities
 from robocloud.iaas.config import Settings
 from robocloud.iaas.elsewhere import Elsewhere
 from robocloud.iaas.metrics import IaasMetrics
+from robocloud.iaas.missions.book import MissionBook
+from robocloud.iaas.missions.service import MissionService, Origins
 from robocloud.iaas.routes import RobotRoutes
 from robocloud.iaas.service import RequestService
 from robocloud.storage import RequestStore, open_store
@@ -58,6 +62,7 @@ class Cloud:
     reconciler: LoanReconciler
     capabilities: KnownCapabilities  # every capability the federation announced
     elsewhere: Elsewhere  # which other cloud holds a request
+    missions: MissionService
 
 
 @contextlib.asynccontextmanager
@@ -94,6 +99,7 @@ async def build_cloud(
             )
             stack.callback(link.close)
         routes = RobotRoutes(settings.set_aside_for)
+        book = MissionBook(store)
         home = Home(
             settings.cloud,
             store,
@@ -104,6 +110,9 @@ async def build_cloud(
             origin_deadline=settings.origin_deadline,
             lend_share=settings.lend_share,
             coalition_of=routes.robots_of,
+            missions=book.status,
+            kept=routes.kept_by_missions,
+            set_aside=routes.aside,
         )
         overlay = None
         if session is not None and settings.federation:
@@ -123,10 +132,22 @@ async def build_cloud(
             home_info=home.info,
             lent_for=home.lent_for,
         )
-        reconciler = LoanReconciler(home, overlay, service, view.lenders)
+        missions = MissionService(
+            settings.cloud,
+            book,
+            store,
+            view,
+            routes,
+            service.rules,
+            service.blocking,
+            service.clock,
+        )
+        reconciler = LoanReconciler(home, overlay, Origins(service, missions), view.lenders)
         metrics.observe_states(settings.cloud, service.robot_statuses, service.active_states)
         await service.start()
         stack.push_async_callback(service.stop)
+        await missions.start()
+        stack.push_async_callback(missions.stop)
         reconciling = asyncio.ensure_future(
             reconciler.reconcile_forever(reconcile_period(settings.origin_deadline))
         )
@@ -143,4 +164,5 @@ async def build_cloud(
             reconciler,
             KnownCapabilities(home.announced, link.robots, overlay),
             Elsewhere(overlay),
+            missions,
         )

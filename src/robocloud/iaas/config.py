@@ -95,6 +95,10 @@ class Settings:
     origin_deadline: float = 60.0
     lend_share: float = 0.5  # of this cloud's robots one other cloud holds at most
     federation: bool = True
+    # An HTTP connection whose request line and headers are not all in this
+    # many seconds after it opened (or after the request's first byte) is
+    # closed (robocloud.cli.serving): a client cannot hold one for ever.
+    header_timeout: float = 10.0
     # TLS, logins and access control on the overlay (docs/security.md); None:
     # plain TCP, for one machine.
     overlay_security: OverlaySecurity | None = None

@@ -148,6 +148,10 @@ class IaasMetrics:
         """Where the gauges read at each scrape: the robots (cloud, status), the active requests."""
         self._gauges.cloud, self._gauges.robots, self._gauges.active = cloud, robots, active
 
+    def observe_streams(self, open_streams: Callable[[], int]) -> None:
+        """Where the gauge of open event streams reads at each scrape (the request feed)."""
+        self._gauges.streams = open_streams
+
     def entered(self, state: str) -> None:
         self.transitions.labels(state).inc()
         if state in FINAL_STATES:
@@ -172,6 +176,7 @@ class _Gauges:
         self.cloud = cloud
         self.robots = robots
         self.active = active
+        self.streams: Callable[[], int] = lambda: 0
 
     def describe(self) -> list[Metric]:
         return []  # computed at scrape: nothing to check in advance
@@ -200,6 +205,12 @@ class _Gauges:
             if state in ACTIVE_STATES:
                 requests.add_metric([state], states.get(state, 0))
         yield requests
+        yield GaugeMetricFamily(
+            "robocloud_event_streams",
+            "Event streams of requests (GET /v1/requests/{id}/events) open now; a client that "
+            "goes away takes its stream with it.",
+            value=self.streams(),
+        )
 
 
 class _Refusals:

@@ -117,12 +117,24 @@ class RobotPublic(BaseModel):
     capability_kinds: dict[str, str] = Field(
         default_factory=dict, description="capability name -> sensing or actuating"
     )
-    request: str | None = Field(None, description="the request the robot is reserved for")
-    progress: Progress | None = None
+    request: str | None = Field(
+        None,
+        description="the request the robot is reserved for; null unless the asking "
+        "application sent that request",
+    )
+    progress: Progress | None = Field(
+        None, description="how far its task is; null unless the asking application owns it"
+    )
     set_aside: SetAsidePublic | None = Field(
         None,
         description="this cloud's selections do not choose the robot until `until`: it "
         "failed requests in a row (no ack, stalled, past its expected finish)",
+    )
+    refused: str | None = Field(
+        None,
+        description="why its last state was refused (e.g. its sent_at far from this cloud's "
+        "clock), until one is accepted; a robot none of whose states was accepted is listed "
+        "offline with this alone",
     )
     seen_ago: float | None = Field(None, description="seconds since its last state message")
 

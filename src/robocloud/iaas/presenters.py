@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from datetime import UTC, datetime
 from typing import TYPE_CHECKING, Any
 
@@ -88,13 +89,18 @@ def robot_json(
     age: float | None,
     request: str | None,
     aside: SetAside | None = None,
+    owned: bool = False,
+    refused: str | None = None,
 ) -> dict[str, Any]:
     """One robot of this cloud as ``RobotPublic`` puts it on the wire, as plain JSON values.
 
-    Plain values, not models: ``GET /v1/robots`` builds thousands a page.
+    ``request`` (what holds the robot) and the progress of its task are shown
+    only when the application asking ``owned`` that request; to others the
+    robot is ``reserved`` or ``busy``, for whom they are not told. Plain
+    values, not models: ``GET /v1/robots`` builds thousands a page.
     """
     progress = None
-    if state is not None and state.task is not None:
+    if owned and state is not None and state.task is not None:
         progress = {"phase": state.task.phase, "progress": float(state.task.progress)}
     return {
         "id": robot.id,
@@ -106,10 +112,31 @@ def robot_json(
         "status": shown_status(robot.status, request),
         "capabilities": sorted(robot.capabilities),
         "capability_kinds": {n: c.kind for n, c in robot.capabilities.items()},
-        "request": request,
+        "request": request if owned else None,
         "progress": progress,
         "set_aside": set_aside_json(aside),
+        "refused": refused,
         "seen_ago": round(age, 3) if age is not None else None,
+    }
+
+
+def refused_robot_json(robot_id: str, cloud: str, why: str) -> dict[str, Any]:
+    """A robot of this cloud none of whose states was accepted: its id and why, on the wire."""
+    return {
+        "id": robot_id,
+        "cloud": cloud,
+        "kind": None,
+        "position": [],
+        "speed": 0.0,
+        "battery": 0.0,
+        "status": "offline",
+        "capabilities": [],
+        "capability_kinds": {},
+        "request": None,
+        "progress": None,
+        "set_aside": None,
+        "refused": why,
+        "seen_ago": None,
     }
 
 
@@ -130,11 +157,17 @@ def shown_status(status: str, request: str | None) -> str:
     return "reserved" if status == "idle" and request is not None else status
 
 
-def remote_robot_json(data: dict[str, Any]) -> dict[str, Any]:
-    """A robot of another cloud, as its home described it (``FleetReply``), on the wire."""
+def remote_robot_json(data: dict[str, Any], owns: Callable[[str], bool]) -> dict[str, Any]:
+    """A robot of another cloud, as its home described it (``FleetReply``), on the wire.
+
+    Its request and progress are shown as for this cloud's robots: only to the
+    application that ``owns`` the request (a request of this cloud).
+    """
+    request = data.get("request")
+    owned = isinstance(request, str) and owns(request)
     task = data.get("progress")
     progress = None
-    if task:
+    if owned and task:
         progress = {"phase": task["phase"], "progress": float(task["progress"])}
     capabilities = data.get("capabilities", {})
     return {
@@ -147,8 +180,9 @@ def remote_robot_json(data: dict[str, Any]) -> dict[str, Any]:
         "status": data["status"],
         "capabilities": sorted(capabilities),
         "capability_kinds": {n: c["kind"] for n, c in capabilities.items()},
-        "request": data.get("request"),
+        "request": request if owned else None,
         "progress": progress,
         "set_aside": None,
+        "refused": None,
         "seen_ago": None,
     }

@@ -34,11 +34,25 @@ import msgspec
 
 from robocloud.domain import Robot
 from robocloud.errors import InvalidInput, explained
-from robocloud.iaas.presenters import remote_robot_json, robot_json, shown_status
+from robocloud.iaas.presenters import (
+    refused_robot_json,
+    remote_robot_json,
+    robot_json,
+    shown_status,
+)
 from robocloud.iaas.routes import SetAside
 
 DEFAULT_LIMIT = 1000  # robots a page when the client does not say
 MAX_LIMIT = 10_000  # the most a client may ask for (about 2.8 MB of JSON, 0.2 MB gzipped)
+# A page stops at the robot that takes its JSON past this many bytes (a robot
+# may carry 100 capabilities of 128-character names: about 30 KB; 10,000 of
+# them made a 300 MB page); ``Link`` then leads on from there. Ordinary
+# robots (about 300 bytes) never reach it below MAX_LIMIT.
+PAGE_BYTES = 4 * 1024 * 1024
+# Robots whose JSON the listing keeps between pages (about 0.6 KB each): a
+# fleet at rest of up to this many costs a look-up a robot; a larger one is
+# encoded again page by page instead of kept whole.
+KEPT = 20_000
 CURSOR_PATTERN = explained(
     r"^[A-Za-z0-9_-]{1,700}$", "the cursor of the previous page (letters, digits, - and _)"
 )
@@ -81,11 +95,20 @@ class RobotJson:
     """
 
     def __init__(self) -> None:
-        self._kept: dict[str, tuple[Robot, Any, str | None, SetAside | None, bytes]] = {}
+        self._kept: dict[
+            str, tuple[Robot, Any, str | None, SetAside | None, bool, str | None, bytes]
+        ] = {}
 
     def steady(
-        self, robot: Robot, state: Any, request: str | None, aside: SetAside | None = None
+        self,
+        robot: Robot,
+        state: Any,
+        request: str | None,
+        aside: SetAside | None = None,
+        owned: bool = False,
+        refused: str | None = None,
     ) -> bytes:
+        """The robot's JSON; ``owned``: the asker owns ``request`` (it sees it and the progress)."""
         kept = self._kept.get(robot.id)
         if (
             kept is not None
@@ -93,17 +116,24 @@ class RobotJson:
             and kept[1] is state
             and kept[2] == request
             and kept[3] is aside
+            and kept[4] is owned
+            and kept[5] == refused
         ):
-            return kept[4]
-        data = robot_json(robot, state, None, request, aside)
+            return kept[6]
+        data = robot_json(robot, state, None, request, aside, owned, refused)
         del data["seen_ago"]
         raw = msgspec.json.encode(data)
-        self._kept[robot.id] = (robot, state, request, aside, raw)
+        self._kept[robot.id] = (robot, state, request, aside, owned, refused, raw)
         return raw
 
+    def __len__(self) -> int:
+        return len(self._kept)
+
     def prune(self, present: int) -> None:
-        """Forget robots no longer listed once the cache is twice the fleet."""
-        if len(self._kept) > 2 * present + 100:
+        """Forget robots no longer listed once the cache is twice the fleet, and every robot
+        once it holds more than ``KEPT``: a walk of a large fleet keeps one page's worth, not
+        the fleet's (issue 25: 100,000 robots' JSON stayed after a full listing)."""
+        if len(self._kept) > min(2 * present + 100, KEPT):
             self._kept.clear()
 
 
@@ -140,14 +170,36 @@ def local_rows(
     ]
 
 
-def remote_rows(fleets: Iterable[Sequence[dict[str, Any]]], wanted: RobotFilter,
-                exclude_cloud: str) -> list[tuple[Key, dict[str, Any]]]:
-    """Other clouds' robots (as their homes sent them) that match, as wire values."""
+def refused_rows(
+    cloud: str, refused: dict[str, str], known: Iterable[str], wanted: RobotFilter
+) -> list[tuple[Key, dict[str, Any]]]:
+    """Robots of this cloud none of whose states was accepted: listed offline with the reason.
+
+    At most ``MAX_TRACKED`` of them (``robocloud.fleet.state_errors``), one reason each.
+    """
+    heard = set(known)
+    return [
+        ((cloud, robot), refused_robot_json(robot, cloud, why))
+        for robot, why in refused.items()
+        if robot not in heard and wanted.keeps(cloud, "offline", ())
+    ]
+
+
+def remote_rows(
+    fleets: Iterable[Sequence[dict[str, Any]]],
+    wanted: RobotFilter,
+    exclude_cloud: str,
+    owns: Callable[[str], bool] = lambda request: False,
+) -> list[tuple[Key, dict[str, Any]]]:
+    """Other clouds' robots (as their homes sent them) that match, as wire values.
+
+    ``owns``: whether the asking application owns a request (it sees its id and progress).
+    """
     rows = []
     for robots in fleets:
         for data in robots:
             try:
-                robot = remote_robot_json(data)
+                robot = remote_robot_json(data, owns)
             except (KeyError, TypeError, ValueError, AttributeError):
                 continue  # a home that sent something else: left out, not a 500
             if robot["cloud"] != exclude_cloud and wanted.keeps(
@@ -189,21 +241,35 @@ def build_page(
     held: dict[str, str],
     cache: RobotJson,
     aside: Callable[[str], SetAside | None] = lambda robot: None,
+    owns: Callable[[str], bool] = lambda request: False,
+    budget: int = PAGE_BYTES,
+    refused: dict[str, str] | None = None,
 ) -> Page:
+    """The page after ``after``: at most ``limit`` robots, and it stops at the first that
+    takes it past ``budget`` bytes (one robot at least); a robot's request and progress
+    only where the asker ``owns`` it."""
     rows: list[tuple[Key, Any]] = [*local, *remote]
     chosen, total, next_key = page_of(rows, after, limit)
     robots, steady = [], []
-    for _, item in chosen:
+    size = 0
+    for index, (key, item) in enumerate(chosen):
         if isinstance(item, dict):
             raw = msgspec.json.encode(item)  # seen_ago is null: nothing to leave out
             robots.append(raw)
             steady.append(raw)
-            continue
-        raw = cache.steady(item, states.get(item.id), held.get(item.id), aside(item.id))
-        age = ages.get(item.id)
-        seen = msgspec.json.encode(round(age, 3)) if age is not None else b"null"
-        robots.append(raw[:-1] + b',"seen_ago":' + seen + b"}")
-        steady.append(raw)
+        else:
+            request = held.get(item.id)
+            owned = request is not None and owns(request)
+            raw = cache.steady(item, states.get(item.id), request, aside(item.id), owned,
+                               refused.get(item.id) if refused else None)
+            age = ages.get(item.id)
+            seen = msgspec.json.encode(round(age, 3)) if age is not None else b"null"
+            robots.append(raw[:-1] + b',"seen_ago":' + seen + b"}")
+            steady.append(raw)
+        size += len(robots[-1]) + 1
+        if size >= budget and index + 1 < len(chosen):
+            next_key = key  # the rest of the page is the next page's
+            break
     cache.prune(len(local))
     return Page(robots, steady, total, next_key)
 

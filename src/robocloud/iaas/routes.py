@@ -4,7 +4,10 @@ The one owner of robots' routes and claims in an IaaS (``RobotRoutes``):
 
 - a **route** says which request a robot's reports go to: from the robot's
   reservation (``Follow``) until its part ends (``Unfollow``, or the request's
-  end);
+  end). A mission (``robocloud.iaas.missions``) routes its robots the same
+  way, to the mission's id, for the robot's whole part of the mission, and
+  says which of its tasks the robot was last sent (``working_on``): the one
+  request id the robot may work on without being a stray;
 - a **claim** keeps a robot that a selection has just chosen away from the
   other selections until its reservation is decided: from the choice until
   the reservation's answer (``Unclaim``), the request's end, whichever comes
@@ -26,6 +29,8 @@ import threading
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
+
+from robocloud.domain.mission_ids import MISSION_ID
 
 STRIKES = 2  # failures in a row that set a robot aside
 
@@ -49,21 +54,49 @@ class RobotRoutes:
         self._lock = threading.Lock()
         self._routes: dict[str, str] = {}  # robot -> the request that follows it
         self._claims: dict[str, str] = {}  # robot -> the request that chose it, not reserved yet
+        self._tasks: dict[str, str] = {}  # robot -> the mission task it was last sent
         self._by_request: dict[str, set[str]] = {}  # request -> its routed and claimed robots
         self._strikes: dict[str, list[str]] = {}  # robot -> its failures in a row, why
         self._aside: dict[str, SetAside] = {}
 
     # -- routes and claims ---------------------------------------------------------
 
-    def follow(self, request_id: str, robot: str) -> bool:
-        """Route the robot's reports to the request; False when it already was."""
+    def follow(self, request_id: str, robot: str, task: str | None = None) -> bool:
+        """Route the robot's reports to the request; False when it already was.
+
+        ``task``: a mission's, the request id of the task the robot is sent now.
+        """
         with self._lock:
+            if task is None:
+                self._tasks.pop(robot, None)
+            else:
+                self._tasks[robot] = task
             if self._routes.get(robot) == request_id:
                 return False
             self._drop(self._routes, robot)
             self._routes[robot] = request_id
             self._by_request.setdefault(request_id, set()).add(robot)
             return True
+
+    def take(self, request_id: str, robots: Iterable[str]) -> list[str]:
+        """Follow every robot for the request, unless another holds one: then none,
+        and the robots held (routed, claimed or set aside) are returned."""
+        robots = list(robots)
+        with self._lock:
+            now = self._wall()
+            taken = [
+                r
+                for r in robots
+                if self._routes.get(r, request_id) != request_id
+                or self._claims.get(r, request_id) != request_id
+                or (r in self._aside and self._aside[r].until > now)
+            ]
+            if taken:
+                return taken
+            for robot in robots:
+                self._routes[robot] = request_id
+                self._by_request.setdefault(request_id, set()).add(robot)
+            return []
 
     def unfollow(self, request_id: str, robot: str) -> bool:
         """End the robot's route (and claim) for the request; False when it had none."""
@@ -73,6 +106,7 @@ class RobotRoutes:
             if self._routes.get(robot) != request_id:
                 return False
             self._drop(self._routes, robot)
+            self._tasks.pop(robot, None)
             return True
 
     def claim(self, request_id: str, robots: Iterable[str]) -> None:
@@ -94,12 +128,22 @@ class RobotRoutes:
             for robot in self._by_request.pop(request_id, set()):
                 if self._routes.get(robot) == request_id:
                     del self._routes[robot]
+                    self._tasks.pop(robot, None)
                 if self._claims.get(robot) == request_id:
                     del self._claims[robot]
 
     def request_of(self, robot: str) -> str | None:
         """The request that follows the robot now."""
         return self._routes.get(robot)
+
+    def working_on(self, robot: str) -> str | None:
+        """The request id the robot may work on now: its mission task's, or its request's."""
+        return self._tasks.get(robot) or self._routes.get(robot)
+
+    def kept_by_missions(self) -> set[str]:
+        """The robots this cloud's missions hold now (any thread)."""
+        with self._lock:
+            return {r for r, q in self._routes.items() if MISSION_ID.fullmatch(q)}
 
     def claimed_by(self, robot: str) -> str | None:
         return self._claims.get(robot)

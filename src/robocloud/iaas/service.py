@@ -46,8 +46,9 @@ from robocloud.iaas import lifecycle as lc
 from robocloud.iaas.actor import RequestActor, Selector, Shell
 from robocloud.iaas.admission import Admission
 from robocloud.iaas.config import Settings
-from robocloud.iaas.feed import RequestFeed
+from robocloud.iaas.feed import RequestFeed, Updates
 from robocloud.iaas.metrics import IaasMetrics
+from robocloud.iaas.owned import spawn_owned
 from robocloud.iaas.routes import RobotRoutes
 from robocloud.iaas.selector import SelectionPool, SelectorSettings
 from robocloud.iaas.store_writes import StoreWrites
@@ -92,6 +93,7 @@ class RequestService:
         self.clock = clock
         self.routes = routes or RobotRoutes(settings.set_aside_for, clock)
         self.feed = RequestFeed()
+        self.metrics.observe_streams(self.feed.following)
         # This cloud's presence summary (its Home's) and its loans.
         self.home_info: Callable[[], CloudInfo] = home_info or (
             lambda: CloudInfo(cloud=settings.cloud, robots=len(self.link.robots()), idle=0)
@@ -151,6 +153,7 @@ class RequestService:
             metrics=self.metrics,
             selection_turn=lambda: self._selection_turns,
         )
+        self.rules = self._shell.rules  # the watchdog's rule, shared with the missions
         self.admission = Admission(
             settings.max_waiting, settings.busy_after, self.metrics, self._shell.mono
         )
@@ -210,16 +213,7 @@ class RequestService:
 
     def _spawn(self, work: Coroutine[Any, Any, Any], what: str) -> asyncio.Task[Any]:
         """A task this service owns: awaited in ``stop``, its error logged."""
-        task = asyncio.ensure_future(work)
-        self._tasks.add(task)
-
-        def done(finished: asyncio.Task[Any]) -> None:
-            self._tasks.discard(finished)
-            if not finished.cancelled() and finished.exception() is not None:
-                log.error("%s failed", what, exc_info=finished.exception())
-
-        task.add_done_callback(done)
-        return task
+        return spawn_owned(self._tasks, work, what, log)
 
     def _start(
         self,
@@ -348,6 +342,11 @@ class RequestService:
         member = self._member(robot_id)
         return (member.phase, member.progress) if member is not None else None
 
+    def owner_of(self, request_id: str) -> str | None:
+        """The application of a request this process carries out now, or None."""
+        actor = self._actors.get(request_id)
+        return actor.record.application if actor is not None else None
+
     def request_of(self, robot_id: str) -> str | None:
         return self.routes.request_of(robot_id)
 
@@ -360,9 +359,11 @@ class RequestService:
         actor = self._actors.get(request_id)
         return actor.life if actor is not None else None
 
-    def events(self, application: str, request_id: str) -> AsyncIterator[RequestRecord]:
-        """The request now, then after each change, until it is final."""
-        return self.feed.follow(request_id, lambda: self.get(application, request_id))
+    def events(
+        self, application: str, request_id: str, updates: Updates
+    ) -> AsyncIterator[RequestRecord]:
+        """The request now, then each change (``updates``: ``feed.subscribe``), until final."""
+        return self.feed.follow(updates, lambda: self.get(application, request_id))
 
     def loan_ended(self, request_id: str, robot: str, home: str, why: str) -> None:
         """A robot's home ended its loan to one of our requests on its own (any thread).

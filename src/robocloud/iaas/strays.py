@@ -1,8 +1,9 @@
 """Robots are always told: a robot working for a request that does not need it is stopped.
 
 A robot of this cloud that reports working on a request that is not active
-for it (neither one of this cloud's requests that follows it, nor a loan to
-another cloud for that request) is told to stop, at once and then at most
+for it (neither one of this cloud's requests that follows it, nor the task
+of this cloud's mission it was last sent, nor a loan to another cloud for that
+request or mission) is told to stop, at once and then at most
 once every ``TELL_AGAIN_AFTER`` seconds while it keeps at it (``StrayRobots``).
 The stops of a request's own life (a robot failed, refused, or the request
 ended) are its actor's; this catches what they missed: a stop the robot did
@@ -16,6 +17,7 @@ import time
 from collections.abc import Awaitable, Callable, Coroutine
 from typing import Any
 
+from robocloud.domain.mission_ids import holder_of
 from robocloud.fleet.link import RobotLink
 from robocloud.fleet.messages import State
 from robocloud.iaas.metrics import IaasMetrics
@@ -23,7 +25,7 @@ from robocloud.iaas.routes import RobotRoutes
 
 log = logging.getLogger(__name__)
 
-WORKING = frozenset({"travel", "work"})
+WORKING = frozenset({"travel", "waiting", "work"})
 TELL_AGAIN_AFTER = 1.0  # seconds between two stop commands to a robot for one request
 
 
@@ -62,7 +64,7 @@ class StrayRobots:
             task is not None
             and task.phase in WORKING
             and state.cloud == self.cloud
-            and task.request_id != self.routes.request_of(state.id)
+            and task.request_id != self.routes.working_on(state.id)
         ):
             self._tell_to_stop(state.id, task.request_id)
 
@@ -79,9 +81,9 @@ class StrayRobots:
     async def _stop(self, robot: str, request_id: str) -> None:
         if not self._works_for(robot, request_id):
             return  # a report that was overtaken: the robot has moved on
-        if await self.blocking(self.lent_for, robot) == request_id:
-            return  # lent to another cloud for that request
-        if self.routes.request_of(robot) == request_id or not self._works_for(robot, request_id):
+        if await self.blocking(self.lent_for, robot) == holder_of(request_id):
+            return  # lent to another cloud for that request (or mission)
+        if self.routes.working_on(robot) == request_id or not self._works_for(robot, request_id):
             return  # followed, or done, meanwhile
         log.warning(
             "robot %s reports work on request %s, which is not active for it; telling it to stop",

@@ -40,7 +40,7 @@ from robocloud.domain import Robot
 from robocloud.errors import InvalidInput, describe_validation_errors
 from robocloud.fleet import keys
 from robocloud.fleet.ingest import WireState, encode_batch
-from robocloud.fleet.messages import COMMAND, Ack, Assign, Cancel, State
+from robocloud.fleet.messages import COMMAND, Ack, Assign, Cancel, Start, State
 from robocloud.fleet.state_errors import MAX_BATCH_STATES
 from robocloud.fleet.zenoh_session import SessionSecurity, open_client
 from robocloud.sim.churn import Churn
@@ -308,6 +308,8 @@ class FleetSimulator:
                     ack = robot.assign(command)
                 case Cancel():
                     ack = robot.cancel(command.request_id)
+                case Start():
+                    ack = robot.start(command.request_id)
             counted = (command.type, "accepted" if ack.ok else "refused")
             self.commands_answered[counted] = self.commands_answered.get(counted, 0) + 1
         logger.debug("%s %s -> %s", robot.id, command.type, ack)

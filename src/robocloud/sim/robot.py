@@ -3,7 +3,8 @@
 ::
 
     idle --assign--> busy: travel --arrived--> busy: work --finished--> idle (task done)
-                       |                          |
+                       |          |                ^  |
+                       |          '--(hold)--> waiting |   (protocol 1.2: until start)
                        +--- battery empty --------+--> offline (task failed)
     busy --cancel--> idle, where it stands
 
@@ -35,7 +36,14 @@ from robocloud.fleet.behaviour import (
     refuse_cancel,
 )
 from robocloud.fleet.ingest import WireState, WireTask, wire_task
-from robocloud.fleet.messages import Ack, Assign, Phase, State, TaskProgress
+from robocloud.fleet.messages import (
+    PROTOCOL_VERSION,
+    Ack,
+    Assign,
+    Phase,
+    State,
+    TaskProgress,
+)
 
 # A finished task stays in the robot's state this long (wall seconds), so one
 # lost message does not hide how it ended.
@@ -56,10 +64,13 @@ class Job:
     work_left: float  # seconds
     total: float  # seconds, travel and work
     elapsed: float = 0.0
+    held: bool = False  # protocol 1.2: waits at the location until started
 
     @property
     def phase(self) -> Phase:
-        return "travel" if self.travel_left > 0.0 else "work"
+        if self.travel_left > 0.0:
+            return "travel"
+        return "waiting" if self.held else "work"
 
     @property
     def progress(self) -> float:
@@ -142,6 +153,7 @@ class SimRobot:
             last_task=wire_task(self.finished),
             seq=self.seq,
             sent_at=now,
+            protocol=PROTOCOL_VERSION,
         )
 
     def state(self, now: float) -> State:
@@ -171,6 +183,7 @@ class SimRobot:
             last_task=self.finished,
             seq=self.seq,
             sent_at=now,
+            protocol=PROTOCOL_VERSION,
         )
 
     # Commands -------------------------------------------------------------
@@ -199,11 +212,26 @@ class SimRobot:
                 travel_left=metres,
                 work_left=work,
                 total=metres / self.speed + work,
+                held=command.hold,
             )
             self.status = "busy"
             self.finished = None
             self.dirty = True
         return Ack(ok=True, robot=self.id, request_id=command.request_id)
+
+    def start(self, request_id: str) -> Ack:
+        """Protocol 1.2: work on the held task of ``request_id`` (on arrival, if not there yet)."""
+        current = self.job.request_id if self.job is not None else None
+        if current != request_id:
+            doing = f"on request {current}" if current is not None else "on no request"
+            return Ack.refuse(
+                self.id, request_id, f"robot {self.id} is {doing}, not on request {request_id}."
+            )
+        assert self.job is not None
+        if self.job.held:
+            self.job.held = False
+            self.dirty = self.job.travel_left == 0.0  # waiting -> work: a new phase now
+        return Ack(ok=True, robot=self.id, request_id=request_id)
 
     def cancel(self, request_id: str) -> Ack:
         current = self.job.request_id if self.job is not None else None
@@ -266,6 +294,8 @@ class SimRobot:
                     job.travel_left = 0.0
                     self.position = job.target
                     changes.append(self.state(now))
+            elif job.held:
+                return  # there, waiting for its start: time passes, nothing moves
             else:
                 seconds = min(job.work_left, dt)
                 empty = self.battery / DRAIN_PER_S < seconds
@@ -283,7 +313,8 @@ class SimRobot:
                     self._finish(job, "done", now)
                     changes.append(self.state(now))
                     return
-        if self.job is job and job.travel_left == 0.0 and job.work_left <= _EPSILON:
+        there = self.job is job and job.travel_left == 0.0 and not job.held
+        if there and job.work_left <= _EPSILON:
             # Already there with nothing to do (or dt too short to notice): done.
             self._finish(job, "done", now)
             changes.append(self.state(now))

@@ -16,7 +16,7 @@ Layer 3: imports ``robocloud.domain`` and ``robocloud.errors`` only.
 
 from robocloud.storage.memory import MemoryRequestStore
 from robocloud.storage.opening import MEMORY_URL, open_store
-from robocloud.storage.records import Loan, RequestRecord, StateChange
+from robocloud.storage.records import Loan, MissionRow, RequestRecord, StateChange
 from robocloud.storage.sql import SqlRequestStore
 from robocloud.storage.store import RequestStore, StoreUnavailable
 
@@ -24,6 +24,7 @@ __all__ = [
     "MEMORY_URL",
     "Loan",
     "MemoryRequestStore",
+    "MissionRow",
     "RequestRecord",
     "RequestStore",
     "SqlRequestStore",

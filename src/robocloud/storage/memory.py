@@ -2,11 +2,16 @@
 
 It answers exactly as ``SqlRequestStore`` does (the same checks, sentences
 and JSON round trip), behind one lock; nothing survives the process.
+
+Why one long file: it is the in-memory twin of the four SQL stores
+(requests, loans, holds, missions) behind one lock; cut by concern, each part
+would need the lock and the shared tables of the others.
 """
 
 from __future__ import annotations
 
 import builtins
+import json
 import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
@@ -15,7 +20,14 @@ from typing import Any
 
 from robocloud.domain import ACTIVE_STATES, FINAL_STATES
 from robocloud.storage import rules
-from robocloud.storage.records import Loan, RequestRecord, StateChange, new_loan_id, new_request_id
+from robocloud.storage.records import (
+    Loan,
+    MissionRow,
+    RequestRecord,
+    StateChange,
+    new_loan_id,
+    new_request_id,
+)
 from robocloud.storage.store import Outcome, outcome_of
 
 
@@ -51,6 +63,8 @@ class MemoryRequestStore:
         # robot; the ended loans an origin is still to be told about.
         self._lent: dict[tuple[str, str], dict[str, str]] = {}
         self._untold: dict[str, set[str]] = {}
+        self._missions: dict[str, tuple[MissionRow, str]] = {}  # id -> (row, its JSON)
+        self._mission_keys: dict[tuple[str, str], str] = {}
 
     def together(self, calls: Sequence[Callable[[], Any]]) -> builtins.list[Outcome]:
         """Run ``calls`` in turn, no other thread's call in between."""
@@ -480,3 +494,57 @@ class MemoryRequestStore:
             held = self._holds.get(robot)
             if held is not None and held.request_id == request_id:
                 del self._holds[robot]
+
+    # missions
+
+    def save_mission(self, row: MissionRow) -> MissionRow:
+        with self._lock:
+            if row.id not in self._missions and row.idempotency_key is not None:
+                known = self._mission_keys.get((row.application, row.idempotency_key))
+                if known is not None:
+                    return self._mission(known)
+                self._mission_keys[(row.application, row.idempotency_key)] = row.id
+            self._missions[row.id] = (row, json.dumps(row.document))
+            return row
+
+    def _mission(self, mission_id: str) -> MissionRow:
+        row, document = self._missions[mission_id]
+        return replace(row, document=json.loads(document))
+
+    def mission(self, mission_id: str, application: str | None = None) -> MissionRow | None:
+        with self._lock:
+            if mission_id not in self._missions:
+                return None
+            row = self._mission(mission_id)
+        return row if application in (None, row.application) else None
+
+    def mission_by_key(self, application: str, idempotency_key: str) -> MissionRow | None:
+        with self._lock:
+            known = self._mission_keys.get((application, idempotency_key))
+            return None if known is None else self._mission(known)
+
+    def missions(
+        self, application: str, state: str | None, limit: int, before: str | None
+    ) -> tuple[builtins.list[MissionRow], str | None]:
+        with self._lock:
+            rows = sorted(
+                (r for r, _ in self._missions.values() if r.application == application),
+                key=lambda r: (r.created_at, r.id),
+                reverse=True,
+            )
+            if before is not None:
+                cursor = self._missions.get(before)
+                if cursor is None:
+                    return [], None
+                mark = (cursor[0].created_at, before)
+                rows = [r for r in rows if (r.created_at, r.id) < mark]
+            rows = [r for r in rows if state in (None, r.state)]
+            page = [self._mission(r.id) for r in rows[:limit]]
+        return page, (page[-1].id if len(rows) > limit else None)
+
+    def unfinished_missions(self) -> builtins.list[MissionRow]:
+        with self._lock:
+            return [
+                self._mission(m) for m, (r, _) in self._missions.items()
+                if r.state not in FINAL_STATES
+            ]

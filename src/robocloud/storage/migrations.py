@@ -8,6 +8,8 @@ processes opening a new database from both creating the tables.
 Upgrades, oldest first:
 - ``to_loans``: another cloud's hold on a robot was a "shadow" request; it
   is a loan now.
+- missions: a store made before them gains the ``missions`` table (and its
+  indexes) from ``create_all``; nothing else changes.
 """
 
 from __future__ import annotations

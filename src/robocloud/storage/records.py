@@ -98,3 +98,16 @@ class Loan:
 def new_loan_id() -> str:
     """``loan-`` and 12 lower-case base32 characters, like request ids."""
     return "loan-" + base64.b32encode(secrets.token_bytes(8)).decode("ascii")[:12].lower()
+
+
+@dataclass(frozen=True)
+class MissionRow:
+    """A stored mission: its latest JSON as the API shows it (``document``), opaque
+    to the store, and the fields a list or a retry looks it up by."""
+
+    id: str
+    application: str
+    idempotency_key: str | None
+    state: str
+    created_at: float  # unix seconds, as the mission's JSON says
+    document: dict[str, Any]

@@ -11,6 +11,9 @@
     loans            id PK, robot_id, origin, request_id (the origin's), state,
                      expires_at, reason, tell_origin, created_at, updated_at
     loan_history     id PK (a counter), loan_id -> loans.id, state, detail, at
+    missions         id PK, application, idempotency_key, state, created_at (unix
+                     seconds), document (JSON text: the mission as the API shows it)
+                     UNIQUE (application, idempotency_key)
 
 JSON is TEXT (``json.dumps``) so both databases store and compare it alike.
 Times are UTC: ``timestamptz`` on PostgreSQL, UTC text on SQLite. The primary
@@ -31,6 +34,7 @@ from sqlalchemy import (
     Column,
     DateTime,
     Dialect,
+    Float,
     ForeignKey,
     Index,
     Integer,
@@ -134,6 +138,22 @@ loan_history = Table(
     Column("detail", Text),
     Column("at", UTCDateTime, nullable=False),
     Index("ix_loan_history_loan", "loan_id", "id"),
+)
+
+# Missions (robocloud.iaas.missions): a table a store made before them gains
+# when it opens (``metadata.create_all`` creates what is missing).
+missions = Table(
+    "missions",
+    metadata,
+    Column("id", String(32), primary_key=True),
+    Column("application", String(NAME), nullable=False),
+    Column("idempotency_key", String(NAME)),
+    Column("state", String(16), nullable=False),
+    Column("created_at", Float, nullable=False),
+    Column("document", Text, nullable=False),
+    UniqueConstraint("application", "idempotency_key", name="uq_missions_idempotency"),
+    Index("ix_missions_application_created", "application", "created_at", "id"),
+    Index("ix_missions_state", "state"),
 )
 
 reservations = Table(

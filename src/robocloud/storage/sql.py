@@ -7,6 +7,7 @@ and handed what it needs when the store is built::
     SqlRequestStore            this file: the RequestStore seam, delegating
     ├── SqlRequests            sql_requests.py: requests, history, reservations
     ├── SqlLoans               sql_loans.py: robots lent to other clouds
+    ├── SqlMissions            sql_missions.py: the missions, each its latest JSON
     │   (both: sql_holds.py    who holds a robot now; lapsed holds and loans end)
     ├── create_schema          migrations.py: tables created, older stores upgraded
     └── Database               engine.py: engine, transactions, SQLite group
@@ -28,8 +29,9 @@ from typing import Any
 from robocloud.storage import rules
 from robocloud.storage.engine import URL_HINT, Database, database_url
 from robocloud.storage.migrations import create_schema
-from robocloud.storage.records import Loan, RequestRecord
+from robocloud.storage.records import Loan, MissionRow, RequestRecord
 from robocloud.storage.sql_loans import SqlLoans
+from robocloud.storage.sql_missions import SqlMissions
 from robocloud.storage.sql_requests import SqlRequests
 from robocloud.storage.store import Outcome
 
@@ -52,6 +54,7 @@ class SqlRequestStore:
         store_clock = rules.StoreClock(clock)
         self._requests = SqlRequests(self._db, store_clock)
         self._loans = SqlLoans(self._db, store_clock)
+        self._missions = SqlMissions(self._db)
         try:
             self._db.run(
                 partial(create_schema, sqlite=self._db.sqlite, url=self.url, rows=self._requests),
@@ -187,3 +190,22 @@ class SqlRequestStore:
 
     def told(self, origin: str, loan_ids: Sequence[str]) -> builtins.list[Loan]:
         return self._loans.told(origin, loan_ids)
+
+    # missions
+
+    def save_mission(self, row: MissionRow) -> MissionRow:
+        return self._missions.save_mission(row)
+
+    def mission(self, mission_id: str, application: str | None = None) -> MissionRow | None:
+        return self._missions.mission(mission_id, application)
+
+    def mission_by_key(self, application: str, idempotency_key: str) -> MissionRow | None:
+        return self._missions.mission_by_key(application, idempotency_key)
+
+    def missions(
+        self, application: str, state: str | None, limit: int, before: str | None
+    ) -> tuple[builtins.list[MissionRow], str | None]:
+        return self._missions.missions(application, state, limit, before)
+
+    def unfinished_missions(self) -> builtins.list[MissionRow]:
+        return self._missions.unfinished_missions()

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from typing import Any, Protocol
 
 from robocloud.errors import Unavailable
-from robocloud.storage.records import Loan, RequestRecord
+from robocloud.storage.records import Loan, MissionRow, RequestRecord
 
 
 class StoreUnavailable(Unavailable):
@@ -227,6 +227,28 @@ class RequestStore(Protocol):
 
     def told(self, origin: str, loan_ids: Sequence[str]) -> builtins.list[Loan]:
         """``origin`` learnt that these of its loans ended; returns those marked."""
+        ...
+
+    def save_mission(self, row: MissionRow) -> MissionRow:
+        """Store a mission, new or its latest JSON. A new one whose Idempotency-Key the
+        application used already is not stored: the one it was used for is returned."""
+        ...
+
+    def mission(self, mission_id: str, application: str | None = None) -> MissionRow | None:
+        ...
+
+    def mission_by_key(self, application: str, idempotency_key: str) -> MissionRow | None:
+        ...
+
+    def missions(
+        self, application: str, state: str | None, limit: int, before: str | None
+    ) -> tuple[builtins.list[MissionRow], str | None]:
+        """The application's missions, newest first, after the cursor ``before``;
+        and the next cursor (None on the last page)."""
+        ...
+
+    def unfinished_missions(self) -> builtins.list[MissionRow]:
+        """Every mission not in a final state (a restarted IaaS ends them)."""
         ...
 
     def together(self, calls: Sequence[Callable[[], Any]]) -> builtins.list[Outcome]:

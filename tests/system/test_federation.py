@@ -33,9 +33,6 @@ def start_federation(
     return start_clouds(tmp_path, NAMES, robots, speedup, chain=chain, iaas_args=iaas_args)
 
 
-FINAL = ("completed", "failed", "rejected", "canceled")
-
-
 @pytest.fixture(scope="module")
 def three_clouds(tmp_path_factory: pytest.TempPathFactory) -> Iterator[list[Cloud]]:
     """The three clouds of the file's tests that need no special set-up (one start: 13-20 s)."""
@@ -56,17 +53,7 @@ def as_new(clouds: list[Cloud]) -> None:
     battery (the seeds are the same).
     """
     for cloud in clouds:
-        if cloud.iaas is None or cloud.iaas.poll() is not None:
-            cloud.start_iaas()
-        with cloud.client() as client:
-            for request in client.get("/v1/requests", params={"limit": 200}).json()["items"]:
-                if request["state"] not in FINAL:
-                    client.post(f"/v1/requests/{request['id']}/cancel")
-            wait_until(
-                lambda: all(r["request"] is None for r in client.get("/v1/robots").json()),
-                30,
-                f"{cloud.name}'s robots to be free",
-            )
+        cloud.settle()
     for cloud in clouds:
         if cloud.sim is not None and cloud.sim.poll() is None:
             cloud.sim.terminate()

@@ -27,13 +27,13 @@ run: $(STAMP)
 
 # The tests use the PostgreSQL and MQTT servers already running, else start their own
 # (tests/session_servers.py); chromium is installed when missing, where that can be done.
-# Four workers on two cores: many system tests mostly wait (robots at simulated
-# speed, timeouts), and another worker's work fills those waits. A file stays on
-# one worker (its servers start once); the slowest files start first
-# (tests/conftest.py orders them), so --no-loadscope-reorder keeps that order.
+# Two workers, one per core (four were slower: the system tests' processes
+# keep the cores busy). A file stays on one worker (its servers start once);
+# the slowest files start first (tests/conftest.py orders them), so
+# --no-loadscope-reorder keeps that order.
 test: $(STAMP)
 	sh tests/wildfire/ensure_chromium.sh
-	$(BIN)/python -m pytest -q -n 4 --dist loadfile --no-loadscope-reorder
+	$(BIN)/python -m pytest -q -n 2 --dist loadfile --no-loadscope-reorder
 
 # schemathesis for 40 s instead of make test's 15 (tests/system/test_api_fuzz.py).
 fuzz: $(STAMP)

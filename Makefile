@@ -10,7 +10,7 @@ STAMP := $(VENV)/.installed
 # several seconds, real processes, a browser, the PostgreSQL server.
 QUICK := not slow and not system and not browser and not postgres
 
-.PHONY: run test check lint bench reset clean venv
+.PHONY: run test fuzz check lint bench reset clean venv
 
 venv: $(STAMP)
 
@@ -27,9 +27,17 @@ run: $(STAMP)
 
 # The tests use the PostgreSQL and MQTT servers already running, else start their own
 # (tests/session_servers.py); chromium is installed when missing, where that can be done.
+# Two workers, one per core (four were slower: the system tests' processes
+# keep the cores busy). A file stays on one worker (its servers start once);
+# the slowest files start first (tests/conftest.py orders them), so
+# --no-loadscope-reorder keeps that order.
 test: $(STAMP)
 	sh tests/wildfire/ensure_chromium.sh
-	$(BIN)/python -m pytest -q -n 2 --dist loadfile
+	$(BIN)/python -m pytest -q -n 2 --dist loadfile --no-loadscope-reorder
+
+# schemathesis for 40 s instead of make test's 15 (tests/system/test_api_fuzz.py).
+fuzz: $(STAMP)
+	ROBOCLOUD_FUZZ_SECONDS=40 $(BIN)/python -m pytest -q -s tests/system/test_api_fuzz.py
 
 check: lint
 	$(BIN)/python -m pytest -q -n 2 -m "$(QUICK)"

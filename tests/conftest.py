@@ -15,6 +15,10 @@ PostgreSQL tests run in a database made for this session
 run starts itself; the VDA 5050 tests share an MQTT broker found or started
 the same way (``session_servers.py`` says how). With no server to be had they
 fail, never skip: CI must run them.
+
+Order: the slowest files run first (``SLOWEST_FIRST``, then the other slow
+ones), so that ``make test``'s workers (``--dist loadfile``: a file stays on
+one worker) end together instead of one of them starting a long file last.
 """
 
 from __future__ import annotations
@@ -33,6 +37,28 @@ from session_servers import ServerUnavailable, close_run, mqtt_broker, open_run,
 TESTS = Path(__file__).parent
 SYSTEM_FOLDER = "system"
 POSTGRES_FIXTURES = frozenset({"postgres_admin", "postgres_url", "postgres_cleaner"})
+# The longest files of `make test`, longest first (README, "Tests", has the
+# measured seconds); a file not named here but marked slow comes after them.
+SLOWEST_FIRST = (
+    "system/test_federation.py",
+    "conformance/test_robot_check.py",
+    "system/test_one_cloud.py",
+    "system/test_vda5050.py",
+    "system/test_secure_federation.py",
+    "wildfire/test_wildfire_browser.py",
+    "system/test_robot_truth.py",
+    "system/test_robots_are_told.py",
+    "system/test_store_outage.py",
+    "system/test_demo.py",
+    "federation/test_loans_over_zenoh.py",
+    "system/test_api_fuzz.py",
+    "system/test_ros2.py",
+    "system/test_nxt.py",
+    "system/test_ros2_robot_check.py",
+    "gateways/test_vda5050_gateway.py",
+    "gateways/test_nxt_robot_check.py",
+    "iaas/test_lifecycle.py",
+)
 
 
 def markers_of(item: pytest.Item) -> set[str]:
@@ -60,10 +86,19 @@ def pytest_unconfigure(config: pytest.Config) -> None:
     close_run()
 
 
+def run_order(item: pytest.Item) -> tuple[int, int]:
+    """Where an item's file comes in the run: the slowest first (a stable sort keeps the rest)."""
+    path = item.path.relative_to(TESTS).as_posix() if item.path.is_relative_to(TESTS) else ""
+    if path in SLOWEST_FIRST:
+        return 0, SLOWEST_FIRST.index(path)
+    return (1 if item.get_closest_marker("slow") else 2), 0
+
+
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     for item in items:
         for name in sorted(markers_of(item)):
             item.add_marker(name)
+    items.sort(key=run_order)
 
 
 @pytest.fixture(scope="session")

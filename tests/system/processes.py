@@ -24,6 +24,7 @@ HEADERS = {"Authorization": f"Bearer {API_KEY}"}
 # Flags that turn a cloud's load shedding off (a 503 for new requests when too
 # many wait): for tests that send bursts to check something else.
 NO_SHEDDING = ["--busy-after", "3600", "--max-waiting", "1000000"]
+FINAL_STATES = ("completed", "failed", "rejected", "canceled")
 
 
 def wait_until(predicate: Callable[[], Any], timeout: float, what: str, every: float = 0.05) -> Any:
@@ -166,6 +167,24 @@ class Cloud:
                 except subprocess.TimeoutExpired:
                     process.kill()
                     process.wait(5)
+
+    def settle(self) -> None:
+        """After a test on a shared cloud: its IaaS running, no request open, every robot free.
+
+        A test may have killed the IaaS (it starts again, same port and store);
+        its requests still open are canceled.
+        """
+        if self.iaas is None or self.iaas.poll() is not None:
+            self.start_iaas()
+        with self.client() as client:
+            for request in client.get("/v1/requests", params={"limit": 200}).json()["items"]:
+                if request["state"] not in FINAL_STATES:
+                    client.post(f"/v1/requests/{request['id']}/cancel")
+            wait_until(
+                lambda: all(r["request"] is None for r in client.get("/v1/robots").json()),
+                30,
+                f"{self.name}'s robots to be free",
+            )
 
     def fault(self, robot: str, fault: str, security: Any = None) -> dict[str, Any]:
         """Inject a fault into a simulated robot over the cloud's Zenoh router.

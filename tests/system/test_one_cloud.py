@@ -27,8 +27,10 @@ TASK: dict[str, Any] = {
 }
 
 
-@pytest.fixture
-def cloud(tmp_path: Path) -> Iterator[Cloud]:
+@pytest.fixture(scope="module")
+def shared_cloud(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Cloud]:
+    """One cloud for the tests that need nothing special (a start is 4-5 s of two cores)."""
+    tmp_path = tmp_path_factory.mktemp("one-cloud")
     cloud = Cloud(
         "cloud-a", tmp_path, f"sqlite:///{tmp_path / 'cloud-a.db'}", robots=50, speedup=100.0
     )
@@ -36,6 +38,15 @@ def cloud(tmp_path: Path) -> Iterator[Cloud]:
         yield cloud.start()
     finally:
         cloud.stop()
+
+
+@pytest.fixture
+def cloud(shared_cloud: Cloud) -> Iterator[Cloud]:
+    """The shared cloud; after the test, its IaaS up, no request open, every robot free."""
+    try:
+        yield shared_cloud
+    finally:
+        shared_cloud.settle()
 
 
 def robots_of(request: dict[str, Any]) -> list[str]:

@@ -41,11 +41,14 @@ POSTGRES_FIXTURES = frozenset({"postgres_admin", "postgres_url", "postgres_clean
 # measured seconds); a file not named here but marked slow comes after them.
 SLOWEST_FIRST = (
     "system/test_federation.py",
+    "system/test_missions.py",
     "conformance/test_robot_check.py",
     "system/test_one_cloud.py",
     "system/test_vda5050.py",
     "system/test_secure_federation.py",
     "wildfire/test_wildfire_browser.py",
+    "wildfire/test_wildfire_mission_system.py",
+    "wildfire/test_wildfire_mission_page.py",
     "system/test_robot_truth.py",
     "system/test_robots_are_told.py",
     "system/test_store_outage.py",

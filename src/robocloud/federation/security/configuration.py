@@ -126,16 +126,7 @@ class OverlaySecurity:
         password = None
         if password_file is not None:
             path = Path(password_file)
-            try:
-                lines = path.read_text(encoding="utf-8").splitlines()
-            except FileNotFoundError:
-                raise InvalidInput(
-                    f"the Zenoh password file {path} does not exist.", field="password"
-                ) from None
-            except (OSError, UnicodeDecodeError) as error:
-                raise InvalidInput(
-                    f"cannot read the Zenoh password file {path}: {error}.", field="password"
-                ) from error
+            lines = _read_text(path, "Zenoh password file", "password").splitlines()
             password = lines[0] if lines else ""
         robot_ids = read_robot_ids(Path(robot_ids_file)) if robot_ids_file is not None else ()
         if all(v is None for v in (ca, cert, key, user, password, credentials, robot_ids_file)):
@@ -231,16 +222,7 @@ class OverlaySecurity:
 
 def read_credentials(path: Path) -> dict[str, str]:
     """The ``user:password`` lines of a credentials file, checked as Zenoh reads them."""
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise InvalidInput(
-            f"the Zenoh credentials file {path} does not exist.", field="credentials"
-        ) from None
-    except (OSError, UnicodeDecodeError) as error:
-        raise InvalidInput(
-            f"cannot read the Zenoh credentials file {path}: {error}.", field="credentials"
-        ) from error
+    text = _read_text(path, "Zenoh credentials file", "credentials")
     users: dict[str, str] = {}
     for number, line in enumerate(text.splitlines(), 1):
         user, sep, password = line.partition(":")
@@ -262,21 +244,22 @@ def read_robot_ids(path: Path) -> tuple[str, ...]:
     """The ids of a ``--robot-ids`` file: one a line; blank lines and ``#`` comments skipped."""
     from robocloud.federation.security.policy import check_robot_ids
 
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise InvalidInput(
-            f"the robot ids file {path} does not exist.", field="robot_ids"
-        ) from None
-    except (OSError, UnicodeDecodeError) as error:
-        raise InvalidInput(
-            f"cannot read the robot ids file {path}: {error}.", field="robot_ids"
-        ) from error
+    text = _read_text(path, "robot ids file", "robot_ids")
     ids = [line.strip() for line in text.splitlines()]
     ids = [rid for rid in ids if rid and not rid.startswith("#")]
     if not ids:
         raise InvalidInput(f"the robot ids file {path} lists no robot id.", field="robot_ids")
     return check_robot_ids(ids)
+
+
+def _read_text(path: Path, what: str, field: str) -> str:
+    """The text of a settings file, or InvalidInput with a sentence naming ``what``."""
+    try:
+        return path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise InvalidInput(f"the {what} {path} does not exist.", field=field) from None
+    except (OSError, UnicodeDecodeError) as error:
+        raise InvalidInput(f"cannot read the {what} {path}: {error}.", field=field) from error
 
 
 def _check_pem(path: Path | None, what: str, marker: str) -> None:

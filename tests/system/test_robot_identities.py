@@ -88,6 +88,8 @@ def cloud_a(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Cloud, P
         *("--tls-cert", str(certs / f"{CLOUD}.pem")),
         *("--tls-key", str(certs / f"{CLOUD}.key")),
         *("--trust", CLOUD, "--robot-ids", str(ids)),
+        # Each robot here sends a state or two: none turns offline while the test runs.
+        *("--offline-after", "120"),
     ]
     cloud = Cloud(CLOUD, tmp_path, f"sqlite:///{tmp_path / 'cloud-a.db'}", 0, 1.0, iaas_args=flags)
     try:

@@ -7,7 +7,9 @@ Made with the ``cryptography`` package (no ``openssl`` command needed)::
 
 The second run reuses ``certs/ca.pem`` and ``certs/ca.key``. A certificate's
 common name is its name: a cloud's must be the cloud's name (``--cloud``),
-which is how the access control recognises it (``policy``).
+its fleet's ``<cloud>-robots``, one robot's ``<cloud>-robot-<id>``
+(``policy.robot_name``), which is how the access control recognises them
+(``policy``).
 """
 
 from __future__ import annotations
@@ -237,13 +239,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         description="Write OUT/ca.pem, OUT/ca.key and OUT/NAME.pem, OUT/NAME.key for each NAME. "
         "The name says what the holder is to the routers' access control: a cloud's IaaS "
         "is its cloud name (--cloud), a cloud's fleet (robots, simulators, gateways) is "
-        "CLOUD-robots; any other name may only listen and ask the clouds' questions.",
+        "CLOUD-robots, one robot speaking only for itself is CLOUD-robot-ID (with the IaaS's "
+        "--robot-ids); any other name may only listen and ask the clouds' questions.",
     )
     certs.add_argument(
         "names",
         nargs="+",
         metavar="NAME",
-        help="e.g. cloud-a (an IaaS), cloud-a-robots (its fleet)",
+        help="e.g. cloud-a (an IaaS), cloud-a-robots (its fleet), cloud-a-robot-a-0001 (one robot)",
     )
     certs.add_argument("--out", required=True, type=Path, metavar="DIR")
     certs.add_argument(

@@ -17,7 +17,8 @@ Three settings, each optional, all off by default (one machine, loopback):
 ``open_client(..., security=)``) and opens ``tcp/`` endpoints as ``tls/``.
 ``add_arguments`` and ``from_arguments`` are the flags of ``robocloud iaas``
 and ``robocloud sim`` (``--tls-ca``, ``--tls-cert``, ``--tls-key``,
-``--zenoh-user``, ``--zenoh-password-file``, ``--zenoh-credentials``).
+``--zenoh-user``, ``--zenoh-password-file``, ``--zenoh-credentials``,
+``--robot-ids``).
 See docs/security.md.
 """
 
@@ -49,6 +50,8 @@ class OverlaySecurity:
     ``user`` and ``password``: the credentials this session shows.
     ``credentials``: the file of the users a router lets in.
     ``cloud`` and ``trusted`` (set by ``for_cloud``): the access control.
+    ``robot_ids``: the robots of this router's cloud that have a certificate
+    of their own (``<cloud>-robot-<id>``): each may speak for itself only.
     """
 
     ca: Path | None = None
@@ -59,6 +62,7 @@ class OverlaySecurity:
     credentials: Path | None = None
     cloud: str | None = None
     trusted: tuple[str, ...] = ()
+    robot_ids: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         for name in ("ca", "cert", "key", "credentials"):
@@ -66,6 +70,13 @@ class OverlaySecurity:
             if isinstance(value, str):
                 object.__setattr__(self, name, Path(value))
         object.__setattr__(self, "trusted", tuple(self.trusted))
+        object.__setattr__(self, "robot_ids", tuple(self.robot_ids))
+        if self.robot_ids and self.cert is None:
+            raise InvalidInput(
+                "robots with their own certificate (--robot-ids) need mutual TLS: give this "
+                "router its certificate (--tls-ca, --tls-cert, --tls-key).",
+                field="robot_ids",
+            )
         if (self.cert is None) != (self.key is None):
             raise InvalidInput(
                 "a TLS certificate and its private key go together: give both or neither "
@@ -105,6 +116,7 @@ class OverlaySecurity:
         user: str | None = None,
         password_file: str | Path | None = None,
         credentials: str | Path | None = None,
+        robot_ids_file: str | Path | None = None,
     ) -> OverlaySecurity | None:
         """The security the command-line options ask for; None when they ask for none.
 
@@ -114,18 +126,10 @@ class OverlaySecurity:
         password = None
         if password_file is not None:
             path = Path(password_file)
-            try:
-                lines = path.read_text(encoding="utf-8").splitlines()
-            except FileNotFoundError:
-                raise InvalidInput(
-                    f"the Zenoh password file {path} does not exist.", field="password"
-                ) from None
-            except (OSError, UnicodeDecodeError) as error:
-                raise InvalidInput(
-                    f"cannot read the Zenoh password file {path}: {error}.", field="password"
-                ) from error
+            lines = _read_text(path, "Zenoh password file", "password").splitlines()
             password = lines[0] if lines else ""
-        if all(v is None for v in (ca, cert, key, user, password, credentials)):
+        robot_ids = read_robot_ids(Path(robot_ids_file)) if robot_ids_file is not None else ()
+        if all(v is None for v in (ca, cert, key, user, password, credentials, robot_ids_file)):
             return None
         return cls(
             ca=Path(ca) if ca is not None else None,
@@ -134,6 +138,7 @@ class OverlaySecurity:
             user=user,
             password=password,
             credentials=Path(credentials) if credentials is not None else None,
+            robot_ids=robot_ids,
         )
 
     # -- what it turns on ------------------------------------------------------
@@ -210,23 +215,14 @@ class OverlaySecurity:
             from robocloud.federation.security.policy import access_control
 
             entries["access_control"] = access_control(
-                self.cloud, self.trusted, by_certificate=self.mutual_tls
+                self.cloud, self.trusted, by_certificate=self.mutual_tls, robot_ids=self.robot_ids
             )
         return entries
 
 
 def read_credentials(path: Path) -> dict[str, str]:
     """The ``user:password`` lines of a credentials file, checked as Zenoh reads them."""
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise InvalidInput(
-            f"the Zenoh credentials file {path} does not exist.", field="credentials"
-        ) from None
-    except (OSError, UnicodeDecodeError) as error:
-        raise InvalidInput(
-            f"cannot read the Zenoh credentials file {path}: {error}.", field="credentials"
-        ) from error
+    text = _read_text(path, "Zenoh credentials file", "credentials")
     users: dict[str, str] = {}
     for number, line in enumerate(text.splitlines(), 1):
         user, sep, password = line.partition(":")
@@ -242,6 +238,28 @@ def read_credentials(path: Path) -> dict[str, str]:
             f"the Zenoh credentials file {path} lists no user:password.", field="credentials"
         )
     return users
+
+
+def read_robot_ids(path: Path) -> tuple[str, ...]:
+    """The ids of a ``--robot-ids`` file: one a line; blank lines and ``#`` comments skipped."""
+    from robocloud.federation.security.policy import check_robot_ids
+
+    text = _read_text(path, "robot ids file", "robot_ids")
+    ids = [line.strip() for line in text.splitlines()]
+    ids = [rid for rid in ids if rid and not rid.startswith("#")]
+    if not ids:
+        raise InvalidInput(f"the robot ids file {path} lists no robot id.", field="robot_ids")
+    return check_robot_ids(ids)
+
+
+def _read_text(path: Path, what: str, field: str) -> str:
+    """The text of a settings file, or InvalidInput with a sentence naming ``what``."""
+    try:
+        return path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise InvalidInput(f"the {what} {path} does not exist.", field=field) from None
+    except (OSError, UnicodeDecodeError) as error:
+        raise InvalidInput(f"cannot read the {what} {path}: {error}.", field=field) from error
 
 
 def _check_pem(path: Path | None, what: str, marker: str) -> None:
@@ -301,6 +319,13 @@ def add_arguments(parser: argparse.ArgumentParser, router: bool) -> None:
             metavar="FILE",
             help="user:password lines: the only clouds and robots this router lets in",
         )
+        group.add_argument(
+            "--robot-ids",
+            metavar="FILE",
+            help="robot ids, one a line, of this cloud's robots that have their own certificate "
+            "(common name CLOUD-robot-ID): each may put only its own state and answer only its "
+            "own commands (needs --tls-cert; read at start)",
+        )
 
 
 def from_arguments(args: argparse.Namespace) -> OverlaySecurity | None:
@@ -317,6 +342,7 @@ def from_arguments(args: argparse.Namespace) -> OverlaySecurity | None:
         user=args.zenoh_user,
         password_file=args.zenoh_password_file,
         credentials=getattr(args, "zenoh_credentials", None),
+        robot_ids_file=getattr(args, "robot_ids", None),
     )
     cloud, trusted = getattr(args, "cloud", None), getattr(args, "trust", None)
     if security is not None and cloud is not None and trusted is not None:

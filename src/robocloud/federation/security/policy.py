@@ -2,8 +2,9 @@
 
 Each session's certificate says what it is (its common name, made by
 ``make-certs``): a cloud (its name), the fleet of a cloud (``<cloud>-robots``:
-its robots, simulators and gateways), or anything else the federation's CA
-signed. The router of cloud X denies by default; what comes in (ingress) is
+its robots, simulators and gateways), one robot of a cloud
+(``<cloud>-robot-<id>``, for the ids the router is given), or anything else
+the federation's CA signed. The router of cloud X denies by default; what comes in (ingress) is
 allowed by list:
 
 - **X itself** (its own certificate: its IaaS's tools): everything;
@@ -13,6 +14,11 @@ allowed by list:
   control key; the simulator's liveliness token. Not another cloud's keys,
   not a presence token, not a reply to a cloud's question: a robot's
   certificate cannot fabricate a cloud or answer for one;
+- **one robot R of X** (``X-robot-R``, when R is among the router's robot
+  ids): its own state (``robocloud/X/robots/R/state``), a queryable and its
+  replies on its own command key (``robocloud/X/robots/R/cmd``); nothing of
+  another robot, no batch, no token. It subscribes to its error key as
+  everyone may subscribe;
 - **each trusted cloud T**: queries on the command keys that name it as the
   sender, ``robocloud/X/from/T/<command>``; and as a cloud: its presence
   token (``robocloud/federation/clouds/T/*``), queryables and replies on its
@@ -82,10 +88,33 @@ def fleet_name(cloud: str) -> str:
     return f"{cloud}-robots"
 
 
+def robot_name(cloud: str, robot_id: str) -> str:
+    """The common name of one robot's own certificate: it speaks for that robot only."""
+    return f"{cloud}-robot-{robot_id}"
+
+
+def check_robot_ids(robot_ids: Sequence[str]) -> tuple[str, ...]:
+    """The robot ids that have their own certificate, checked: key chunks, each once."""
+    names = tuple(check_chunk(rid, "robot id") for rid in robot_ids)
+    seen: set[str] = set()
+    for rid in names:
+        if rid in seen:
+            raise InvalidInput(f"the robot id {rid!r} is listed twice.", field="robot_ids")
+        seen.add(rid)
+    return names
+
+
 def access_control(
-    cloud: str, trusted: Sequence[str] = (), by_certificate: bool = True
+    cloud: str,
+    trusted: Sequence[str] = (),
+    by_certificate: bool = True,
+    robot_ids: Sequence[str] = (),
 ) -> dict[str, Any]:
-    """Zenoh ``access_control`` for the router of ``cloud`` (see the module's docstring)."""
+    """Zenoh ``access_control`` for the router of ``cloud`` (see the module's docstring).
+
+    ``robot_ids``: the robots of ``cloud`` with a certificate of their own
+    (``robot_name``); each gets one subject and its own keys only.
+    """
     trusted = check_trusted(cloud, trusted, by_certificate)
     if not by_certificate:
         return _by_login(cloud)
@@ -130,6 +159,24 @@ def access_control(
             "rules": ["fleet-states", "fleet-commands", "fleet-presence"],
         },
     ]
+    for rid in check_robot_ids(robot_ids):
+        rules += [
+            _rule(f"state-of-{rid}", ["ingress"], ["put"], [robot_keys.state_key(cloud, rid)]),
+            _rule(
+                f"commands-of-{rid}",
+                ["ingress"],
+                ["declare_queryable", "reply"],
+                [robot_keys.cmd_key(cloud, rid)],
+            ),
+        ]
+        subjects.append({"id": f"robot-{rid}", by: [robot_name(cloud, rid)]})
+        policies.append(
+            {
+                "id": f"robot-{rid}",
+                "subjects": [f"robot-{rid}"],
+                "rules": [f"state-of-{rid}", f"commands-of-{rid}"],
+            }
+        )
     for name in trusted:
         if name == cloud:
             continue  # itself: everything already

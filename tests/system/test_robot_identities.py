@@ -1,0 +1,168 @@
+"""Per-robot identities, written as the attacker would: robot a-0001's own certificate.
+
+cloud-a's IaaS runs on mutual TLS with ``--robot-ids`` naming a-0001 and
+a-0002, each holding its own certificate (``cloud-a-robot-<id>``, from
+``make-certs``). a-0002 is a real robot: it puts its state and answers its
+command key. The attacker holds a-0001's certificate and, besides its own
+state, puts a state for a-0002 (and a batch, and one for a robot nobody
+knows), and declares a-0002's command queryable. The router lets its own
+state through and nothing else: the IaaS keeps a-0002's real state, never
+hears of a-0003, and a command for a-0002 reaches a-0002 alone.
+
+What the IaaS can observe of the refusals: nothing. Zenoh's router drops
+them before the IaaS's session, and logs its access decisions only at trace
+level (docs/security.md, section 6); the IaaS's log says nothing of them.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+import zenoh
+from processes import Cloud, wait_until
+
+from robocloud.federation.security import OverlaySecurity, make_certs
+from robocloud.federation.security.policy import robot_name
+from robocloud.fleet import keys, open_client
+from robocloud.fleet.messages import Ack, State
+
+pytestmark = pytest.mark.slow
+
+CLOUD = "cloud-a"
+KICKER = {"kicker": {"kind": "actuating", "time": 5.0, "cost": 1.0}}
+
+
+def state(robot: str, seq: int, position: list[float], battery: float = 90.0) -> str:
+    return State(
+        id=robot,
+        cloud=CLOUD,
+        kind="tribot",
+        position=position,
+        speed=1.0,
+        battery=battery,
+        status="idle",
+        travel_cost_per_m=0.01,
+        capabilities=KICKER,  # type: ignore[arg-type]
+        seq=seq,
+        sent_at=time.time(),
+    ).model_dump_json()
+
+
+def session_as(cloud: Cloud, certs: Path, name: str) -> zenoh.Session:
+    security = OverlaySecurity(
+        ca=certs / "ca.pem", cert=certs / f"{name}.pem", key=certs / f"{name}.key"
+    )
+    return open_client([cloud.zenoh], timeout=5.0, security=security)
+
+
+class Answerer:
+    """A queryable that answers an Ack and remembers the commands it was sent."""
+
+    def __init__(self, session: zenoh.Session, robot: str) -> None:
+        self.robot = robot
+        self.heard: list[str] = []
+        self._lock = threading.Lock()
+        self.queryable = session.declare_queryable(keys.cmd_key(CLOUD, robot), self._on_query)
+
+    def _on_query(self, query: zenoh.Query) -> None:
+        with self._lock:
+            self.heard.append(query.payload.to_string() if query.payload is not None else "")
+        ack = Ack(ok=True, robot=self.robot, request_id="req-probe")
+        query.reply(query.key_expr, ack.model_dump_json())
+
+
+@pytest.fixture(scope="module")
+def cloud_a(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Cloud, Path]]:
+    tmp_path = tmp_path_factory.mktemp("identities")
+    certs = tmp_path / "certs"
+    make_certs(certs, [CLOUD, robot_name(CLOUD, "a-0001"), robot_name(CLOUD, "a-0002")])
+    ids = tmp_path / "robot-ids.txt"
+    ids.write_text("# robots of cloud-a with a certificate of their own\na-0001\na-0002\n")
+    flags = [
+        *("--tls-ca", str(certs / "ca.pem")),
+        *("--tls-cert", str(certs / f"{CLOUD}.pem")),
+        *("--tls-key", str(certs / f"{CLOUD}.key")),
+        *("--trust", CLOUD, "--robot-ids", str(ids)),
+        # Each robot here sends a state or two: none turns offline while the test runs.
+        *("--offline-after", "120"),
+    ]
+    cloud = Cloud(CLOUD, tmp_path, f"sqlite:///{tmp_path / 'cloud-a.db'}", 0, 1.0, iaas_args=flags)
+    try:
+        cloud.start_iaas()
+        yield cloud, certs
+    finally:
+        cloud.stop()
+
+
+def listed(cloud: Cloud) -> dict[str, dict[str, Any]]:
+    with cloud.client() as client:
+        return {r["id"]: r for r in client.get("/v1/robots").json()}
+
+
+def test_a_robot_certificate_speaks_for_its_robot_only(cloud_a: tuple[Cloud, Path]) -> None:
+    cloud, certs = cloud_a
+    real = session_as(cloud, certs, robot_name(CLOUD, "a-0002"))
+    attacker = session_as(cloud, certs, robot_name(CLOUD, "a-0001"))
+    tool = session_as(cloud, certs, CLOUD)  # the IaaS's own certificate: asks as the IaaS does
+    try:
+        # The real a-0002, with its own certificate: its state and its command key work.
+        real_cmd = Answerer(real, "a-0002")
+        real.put(keys.state_key(CLOUD, "a-0002"), state("a-0002", 1, [10.0, 10.0]))
+        wait_until(
+            lambda: listed(cloud).get("a-0002", {}).get("position") == [10.0, 10.0],
+            20,
+            "a-0002's own state to be accepted",
+        )
+
+        # The attacker: states for another robot, as one and in a batch, and one nobody knows.
+        forged = state("a-0002", 2**40, [999.0, 999.0], battery=5.0)
+        attacker.put(keys.state_key(CLOUD, "a-0002"), forged)
+        attacker.put(keys.batch_key(CLOUD, "gw-1"), f"[{forged}]")
+        attacker.put(keys.state_key(CLOUD, "a-0003"), state("a-0003", 1, [5.0, 5.0]))
+        forged_cmd = Answerer(attacker, "a-0002")
+        token = attacker.liveliness().declare_token(keys.sim_token(CLOUD, 1))
+        # Then its own state and command key: once the IaaS has them, the router has judged
+        # everything the attacker sent before (one link, in order).
+        attacker.put(keys.state_key(CLOUD, "a-0001"), state("a-0001", 1, [1.0, 2.0]))
+        own_cmd = Answerer(attacker, "a-0001")
+        wait_until(
+            lambda: listed(cloud).get("a-0001", {}).get("position") == [1.0, 2.0],
+            20,
+            "a-0001's own state to be accepted",
+        )
+
+        def ask(robot: str) -> list[str]:
+            """Who answers a command for ``robot``, asked as the IaaS asks (every queryable)."""
+            replies = tool.get(
+                keys.cmd_key(CLOUD, robot),
+                payload='{"type": "probe"}',
+                target=zenoh.QueryTarget.ALL,
+                consolidation=zenoh.ConsolidationMode.NONE,
+                timeout=2.0,
+            )
+            return [str(r.replier_id.zid) for r in replies if r.ok is not None and r.replier_id]
+
+        wait_until(lambda: ask("a-0001"), 10, "a-0001 to answer its own commands")
+        assert own_cmd.heard
+        assert ask("a-0002") == [str(real.zid())]
+        assert real_cmd.heard and forged_cmd.heard == []
+
+        robots = listed(cloud)
+        assert set(robots) == {"a-0001", "a-0002"}
+        assert robots["a-0002"]["position"] == [10.0, 10.0]
+        assert robots["a-0002"]["battery"] == 90.0
+        assert robots["a-0002"]["status"] == "idle"
+        assert robots["a-0002"].get("refused") is None
+        # No simulator's token either: a robot's certificate declares none.
+        assert list(tool.liveliness().get(keys.all_sim_tokens(CLOUD), timeout=1.0)) == []
+        token.undeclare()  # type: ignore[no-untyped-call]
+    finally:
+        for session in (real, attacker, tool):
+            session.close()  # type: ignore[no-untyped-call]
+    log = (cloud.workdir / f"{CLOUD}-iaas.log").read_text()
+    assert "a-0003" not in log and "999" not in log

@@ -1,8 +1,10 @@
 """IaaSs answering like ``robocloud iaas`` does, in memory, behind one httpx.MockTransport.
 
 Each fake is reached by its host (``http://cloud-a.test``); a test can make
-one refuse connections (``down``), hang until the client's timeout
-(``hang``), or answer anything (``answer``). Requests keep their
+one refuse connections (``down``), leave its sends unanswered as if the
+client's timeout ran out (``hang_sends``: its POSTs alone, so its health
+still answers and the background health check never moves sends away from
+it), or answer anything (``answer``). Requests keep their
 Idempotency-Key, as the real store does. Missions (``/v1/missions``) are
 planned by ``fake_missions.plan`` over the fake's robots; a test moves them on
 (``fake_missions.advance``, ``replan``) and calls ``changed()``, which wakes
@@ -43,7 +45,7 @@ class FakeIaas:
         self.answer: Callable[[httpx.Request], httpx.Response] | None = None
         self.answer_only: str | None = None  # a method: ``answer`` for it alone
         self.down = False
-        self.hang = False
+        self.hang_sends = False  # a POST gets no answer; every other call does
         self.listing: list[dict[str, Any]] | None = None  # GET /v1/clouds
         self.robots_page: int | None = None  # GET /v1/robots in pages of this many (Link)
         self.clock = START
@@ -82,7 +84,7 @@ class FakeIaas:
         self.calls.append(request)
         if self.down:
             raise httpx.ConnectError("Connection refused", request=request)
-        if self.hang:
+        if self.hang_sends and request.method == "POST":
             raise httpx.ReadTimeout("timed out", request=request)
         if self.answer is not None and self.answer_only in (None, request.method):
             return self.answer(request)

@@ -261,14 +261,15 @@ def test_a_request_is_sent_as_given_to_the_first_iaas(client: TestClient, cloud_
 
 def test_a_send_without_an_answer_is_unknown_and_its_retries_stay_with_that_iaas(
         client: TestClient, cloud_a: FakeIaas, cloud_b: FakeIaas) -> None:
-    cloud_a.hang = True
+    # Its sends alone go unanswered: its health still answers, so it stays first.
+    cloud_a.hang_sends = True
     answer = client.post("/api/requests", json=TASK, headers={"Idempotency-Key": "k-2"})
     assert answer.status_code == 504
     assert answer.json() == {"detail": "the IaaS at http://cloud-a.test did not answer in time.",
                              "delivery": "unknown"}
     # cloud-a is down now and cloud-b answers, but the key may be at cloud-a: it waits for it.
+    cloud_a.hang_sends, cloud_a.down = False, True
     until(lambda: client.get("/api/health").json()["endpoints"][0]["ok"] is False)
-    cloud_a.hang, cloud_a.down = False, True
     again = client.post("/api/requests", json=TASK, headers={"Idempotency-Key": "k-2"})
     assert again.status_code == 502
     assert again.json()["delivery"] == "none"
@@ -329,10 +330,11 @@ def test_when_every_iaas_is_busy_the_page_is_told_nothing_was_sent(
 
 def test_a_busy_answer_to_a_key_that_may_be_there_stays_unknown(
         client: TestClient, cloud_a: FakeIaas, cloud_b: FakeIaas) -> None:
-    cloud_a.hang = True  # the first send may have reached cloud-a
+    cloud_a.hang_sends = True  # the first send may have reached cloud-a
     first = client.post("/api/requests", json=TASK, headers={"Idempotency-Key": "k-11"})
+    assert first.status_code == 504
     assert first.json()["delivery"] == "unknown"
-    cloud_a.hang = False
+    cloud_a.hang_sends = False
     busy(cloud_a)
     # cloud-a refuses before reading the key: the request may be there, so no other IaaS.
     again = client.post("/api/requests", json=TASK, headers={"Idempotency-Key": "k-11"})

@@ -28,7 +28,7 @@ from benchmarks.report import Column, Goal, SectionReport, Table, render_text
 SIZES = (10_000, 100_000)
 QUICK_SIZES = (10_000,)
 SETTLE = 5.0  # seconds after the join: every robot has reported a few times
-GOAL_ROBOTS, GOAL_BYTES = 100_000, 1024**3
+GOAL_ROBOTS, GOAL_BYTES = 100_000, 1_000_000_000  # 1 GB, not GiB
 
 
 def rss_bytes(pid: int) -> int:

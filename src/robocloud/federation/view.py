@@ -46,6 +46,9 @@ LEASE_SECONDS = 15.0
 RESERVATIONS_TTL = 0.25  # seconds a read of the store's reservations serves selections
 GATHER_TTL = 0.25  # seconds the other clouds' answer serves selections of the same filter
 _GATHERED_MAX = 64  # filters whose answers are kept
+# What the other clouds are asked for their idle robots: at least this battery,
+# and at least one of these capabilities (none: any robot).
+IdleFilter = tuple[float, tuple[str, ...]]
 MAX_KEPT_ACKS = 10_000  # acks of robots commanded with their reservation, until assigned
 
 
@@ -77,7 +80,7 @@ class FederationView:
         self.gather_ttl = gather_ttl
         self._clock = clock
         # (min_battery, capabilities) -> (when asked, the answers): see remote_robots
-        self._gathered: dict[tuple[float, tuple[str, ...]], tuple[float, Gathered]] = {}
+        self._gathered: dict[IdleFilter, tuple[float, Gathered]] = {}
         self._reserved: tuple[float, set[str]] | None = None  # (when read, robot ids)
         self._recent: dict[str, float] = {}  # robots reserved here lately -> when
         self._lenders: set[str] = set()
@@ -194,7 +197,12 @@ class FederationView:
         return self.overlay is not None and len(self.overlay.clouds()) > 1
 
     def remote_robots(self, task: Task, exclude: set[str]) -> View:
-        """The idle robots of the other live clouds that answer within the timeout.
+        """``idle_elsewhere`` for a task: its battery and its capabilities."""
+        return self.idle_elsewhere(_filter_of(task), exclude)
+
+    def idle_elsewhere(self, wanted: IdleFilter, exclude: set[str]) -> View:
+        """The idle robots of the other live clouds that answer within the timeout,
+        with ``wanted``'s battery and at least one of its capabilities (any robot: none).
 
         The other clouds' answer to one filter (battery, capabilities) serves
         the selections that need it for ``gather_ttl`` seconds, as a read of
@@ -211,19 +219,20 @@ class FederationView:
         """
         if self.overlay is None:
             return View([])
-        kept = self._kept(task)
+        kept = self._kept(wanted)
         if kept is not None:
             return self._view_of(*kept, exclude)
         asked = self._clock()
+        min_battery, capabilities = wanted
         query = IdleQuery(
-            origin=self.cloud, min_battery=task.min_battery, capabilities=list(task.required)
+            origin=self.cloud, min_battery=min_battery, capabilities=list(capabilities)
         )
         gathered = self.overlay.gather_idle(query, self.gather_timeout)
         if not gathered.missing:
             with self._lock:
                 if len(self._gathered) >= _GATHERED_MAX:
                     self._gathered.clear()
-                self._gathered[_filter_of(task)] = (asked, gathered)
+                self._gathered[wanted] = (asked, gathered)
         view = self._view_of(asked, gathered, exclude)
         view.gather_ms = gathered.elapsed_ms
         return view
@@ -232,14 +241,14 @@ class FederationView:
         """Whether ``remote_robots`` would ask the other clouds (no fresh answer of theirs)."""
         if self.overlay is None or not self.others_live():
             return False
-        return self._kept(task) is None
+        return self._kept(_filter_of(task)) is None
 
     def kept_robots(self, task: Task, exclude: set[str]) -> View | None:
         """``remote_robots`` when it needs no question (no other cloud, or a fresh
         answer), else None: cheap enough for the event loop's thread."""
         if self.overlay is None or not self.others_live():
             return View([])
-        kept = self._kept(task)
+        kept = self._kept(_filter_of(task))
         return None if kept is None else self._view_of(*kept, exclude)
 
     def _view_of(self, asked: float, gathered: Gathered, exclude: set[str]) -> View:
@@ -275,12 +284,12 @@ class FederationView:
             )
         return view
 
-    def _kept(self, task: Task) -> tuple[float, Gathered] | None:
-        """(when asked, the other clouds' answer to ``task``'s filter) if one is fresh,
+    def _kept(self, wanted: IdleFilter) -> tuple[float, Gathered] | None:
+        """(when asked, the other clouds' answer to ``wanted``) if one is fresh,
         from every live cloud."""
         assert self.overlay is not None
         with self._lock:
-            kept = self._gathered.get(_filter_of(task))
+            kept = self._gathered.get(wanted)
         if kept is None or self._clock() - kept[0] >= self.gather_ttl:
             return None
         others = set(self.overlay.clouds()) - {self.cloud}
@@ -533,8 +542,8 @@ class FederationView:
         return stop
 
 
-def _filter_of(task: Task) -> tuple[float, tuple[str, ...]]:
-    """What the other clouds' answer depends on: the idle query's battery and capabilities."""
+def _filter_of(task: Task) -> IdleFilter:
+    """What the other clouds' answer to a task depends on: its battery and capabilities."""
     return (task.min_battery, tuple(task.required))
 
 

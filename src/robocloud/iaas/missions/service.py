@@ -20,7 +20,7 @@ import math
 from collections.abc import AsyncIterator, Awaitable, Callable, Coroutine
 from typing import Any, TypeVar
 
-from robocloud.domain import Robot, Task, is_final
+from robocloud.domain import Robot, is_final
 from robocloud.domain.mission_ids import MISSION_ID, holder_of
 from robocloud.errors import InvalidInput, NotFound, RoboCloudError
 from robocloud.federation.reconcile import OriginStatus
@@ -278,16 +278,8 @@ class MissionService:
         """The federation's robots a mission may take now (idle, not held), nearest first."""
         held = self.routes.held() | set(await self.blocking(self.store.reservations)) | exclude
         local = [r for r in self.view.local_robots(held) if r.status == "idle"]
-        names = sorted({c for task in mission.tasks for c in task.required})
-        ask = Task(
-            location=list(mission.tasks[0].location),
-            sensing={c: 1 for c in names},
-            max_robots=1,
-            max_cost=0.0,
-            max_time=1.0,
-            min_battery=mission.min_battery,
-        )
-        view = await self.blocking(self.view.remote_robots, ask, held)
+        names = tuple(sorted({c for task in mission.tasks for c in task.required}))
+        view = await self.blocking(self.view.idle_elsewhere, (mission.min_battery, names), held)
         remote = [robot_of(r) for r in view.robots]
         robots = [r for r in [*local, *remote] if r.id not in held]
         if len(robots) > MAX_MISSION_ROBOTS:

@@ -41,3 +41,8 @@ def free_port() -> int:
         sock.bind(("127.0.0.1", 0))
         found: int = sock.getsockname()[1]
     return found
+
+
+def free_endpoint() -> str:
+    """A Zenoh TCP endpoint on a loopback port free now (``free_port``)."""
+    return f"tcp/127.0.0.1:{free_port()}"

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import socket
 import threading
 import time
 from collections.abc import Awaitable, Callable, Iterable, Iterator
@@ -12,6 +11,7 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime, timedelta
 from typing import Any
 
+from loopback_ports import free_endpoint
 from robocloud.domain import Robot, Task
 from robocloud.federation.home import Home
 from robocloud.federation.lending import Aside, never_aside
@@ -70,14 +70,6 @@ def zenoh_pair(
         b.close()
         for session in sessions:
             session.close()  # type: ignore[no-untyped-call]
-
-
-def free_endpoint() -> str:
-    """A loopback TCP endpoint on a port free right now."""
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        port = sock.getsockname()[1]
-    return f"tcp/127.0.0.1:{port}"
 
 
 class FakeTime:

@@ -10,8 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import pytest
@@ -32,6 +31,7 @@ from robocloud.federation.messages import (
 from robocloud.federation.overlay import Unreachable, ZenohOverlay
 from robocloud.fleet import open_client, open_router
 from robocloud.iaas.metrics import IaasMetrics
+from waiting import wait_until
 
 
 @dataclass
@@ -59,13 +59,6 @@ class Clouds:
     forger: zenoh.Session  # a client of cloud-a's router
 
 
-def until(condition: Callable[[], object], what: str, timeout: float = 5.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not condition():
-        assert time.monotonic() < deadline, what
-        time.sleep(0.02)
-
-
 @pytest.fixture
 def clouds() -> Iterator[Clouds]:
     a_endpoint = free_endpoint()
@@ -74,7 +67,7 @@ def clouds() -> Iterator[Clouds]:
     a = ZenohOverlay(a_session, "cloud-a", TrustingDesk("cloud-a", trusted=("cloud-b",)))
     b = ZenohOverlay(b_session, "cloud-b", TrustingDesk("cloud-b", trusted=("cloud-a",)))
     forger = open_client([a_endpoint])
-    until(lambda: a.clouds() == ["cloud-a", "cloud-b"], "cloud-a to see cloud-b")
+    wait_until(lambda: a.clouds() == ["cloud-a", "cloud-b"], what="cloud-a to see cloud-b")
     try:
         yield Clouds(a, b, a_endpoint, forger)
     finally:
@@ -100,9 +93,9 @@ def test_a_forged_status_answer_does_not_end_loans(
     caplog.set_level(logging.WARNING, "robocloud.federation.presence")
     # Until the forger's queryable is known at cloud-a's router, its reply does
     # not come; each answer meanwhile must still be cloud-b's own.
-    until(
+    wait_until(
         lambda: clouds.a.status("cloud-b", query) and clouds.a.presence.refusals(),
-        "the forged reply to reach cloud-a",
+        what="the forged reply to reach cloud-a",
     )
     for _ in range(5):
         reply = clouds.a.status("cloud-b", query)
@@ -122,9 +115,9 @@ def test_forged_reserve_and_confirm_answers_are_dropped(clouds: Clouds) -> None:
     refusal = '{"taken": ["b-1"], "error": "forged: taken"}'
     forged = forge(clouds.forger, "robocloud/cloud-b/from/*/*", refusal)
     reservation = Reservation(request_id="r-1", robots=["b-1"])
-    until(
+    wait_until(
         lambda: clouds.a.loans("cloud-b", LoanQuery()) and clouds.a.presence.refusals(),
-        "the forged reply to reach cloud-a",
+        what="the forged reply to reach cloud-a",
     )
     for _ in range(3):
         assert clouds.a.reserve("cloud-b", reservation).taken == []
@@ -135,7 +128,7 @@ def test_forged_reserve_and_confirm_answers_are_dropped(clouds: Clouds) -> None:
     # cloud-b gone, the forger alone answers: cloud-a hears nobody.
     clouds.b.close()
     forged = forge(clouds.forger, "robocloud/cloud-b/from/*/*", refusal)
-    until(lambda: clouds.a.clouds() == ["cloud-a"], "cloud-a to see cloud-b go")
+    wait_until(lambda: clouds.a.clouds() == ["cloud-a"], what="cloud-a to see cloud-b go")
     with pytest.raises(Unreachable, match="not a cloud cloud-a trusts"):
         clouds.a.reserve("cloud-b", reservation)
     forged.undeclare()  # type: ignore[no-untyped-call]
@@ -149,9 +142,9 @@ def test_a_forged_idle_answer_offers_no_robot(clouds: Clouds) -> None:
     }  # fmt: skip
     offer = IdleReply.model_validate({"cloud": "cloud-b", "robots": [robot]})
     forged = forge(clouds.forger, keys.question("cloud-b", "idle"), offer.model_dump_json())
-    until(
+    wait_until(
         lambda: clouds.a.gather_idle(IdleQuery(origin="cloud-a")) and clouds.a.presence.refusals(),
-        "the forged idle reply to reach cloud-a",
+        what="the forged idle reply to reach cloud-a",
     )
     gathered = clouds.a.gather_idle(IdleQuery(origin="cloud-a"))
     assert [r.id for r in gathered.replies["cloud-b"].robots] == []  # cloud-b's real answer
@@ -170,7 +163,7 @@ def test_a_robot_cannot_fabricate_a_cloud(clouds: Clouds, caplog: pytest.LogCapt
             clouds.forger, keys.question("cloud-zzz", "idle"), '{"cloud":"cloud-zzz","robots":[]}'
         ),
     ]
-    until(lambda: "cloud-zzz is present" in caplog.text, "cloud-a to hear of cloud-zzz")
+    wait_until(lambda: "cloud-zzz is present" in caplog.text, what="cloud-a to hear of cloud-zzz")
     assert "cloud-a does not trust it: it is neither asked nor answered" in caplog.text
     assert clouds.a.clouds() == ["cloud-a", "cloud-b"]
     assert [i.cloud for i in clouds.a.infos()] == ["cloud-a", "cloud-b"]
@@ -179,9 +172,12 @@ def test_a_robot_cannot_fabricate_a_cloud(clouds: Clouds, caplog: pytest.LogCapt
         clouds.a.reserve("cloud-zzz", Reservation(request_id="r-1", robots=["z-1"]))
     # Claiming cloud-b beside the real one: nobody is believed for it until one goes.
     claim = clouds.forger.liveliness().declare_token(keys.cloud_token("cloud-b", zid))
-    until(lambda: clouds.a.clouds() == ["cloud-a"], "cloud-b to be left out while disputed")
+    wait_until(
+        lambda: clouds.a.clouds() == ["cloud-a"],
+        what="cloud-b to be left out while disputed",
+    )
     assert "2 sessions declare the presence of cloud-b" in caplog.text
     claim.undeclare()  # type: ignore[no-untyped-call]
-    until(lambda: clouds.a.clouds() == ["cloud-a", "cloud-b"], "cloud-b to be back")
+    wait_until(lambda: clouds.a.clouds() == ["cloud-a", "cloud-b"], what="cloud-b to be back")
     for kept in (token, *answers):
         kept.undeclare()  # type: ignore[no-untyped-call]

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import socket
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -20,6 +19,7 @@ from pathlib import Path
 import pytest
 import zenoh
 
+from loopback_ports import free_endpoint
 from robocloud.errors import InvalidInput
 from robocloud.federation import keys
 from robocloud.federation.keys import CLOUDS_TOKEN
@@ -60,13 +60,6 @@ from robocloud.fleet.zenoh_session import (
 )
 
 NAMES = ("cloud-a", "cloud-b", "cloud-c", "cloud-b-robots")
-
-
-def free_endpoint() -> str:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        port = sock.getsockname()[1]
-    return f"tcp/127.0.0.1:{port}"
 
 
 def ask(session: zenoh.Session, key: str, payload: str | None = None) -> list[str]:

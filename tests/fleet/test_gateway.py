@@ -15,13 +15,15 @@ from typing import Any
 
 import pytest
 import zenoh
-from fleet_testing import free_endpoint, until_subscribed, wait_until
+from fleet_testing import until_subscribed
 
+from loopback_ports import free_endpoint
 from robocloud.errors import InvalidInput
 from robocloud.fleet import Ack, Assign, ZenohRobotLink, keys, open_client, open_router
 from robocloud.fleet.messages import State
 from robocloud.sim.fleet import FleetSimulator
 from robocloud.sim.roster import cloud_robots
+from waiting import wait_until
 
 CLOUD = "cloud-g"
 FLEET = 40

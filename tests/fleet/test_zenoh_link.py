@@ -7,8 +7,9 @@ from collections.abc import Callable, Iterator
 
 import pytest
 import zenoh
-from fleet_testing import free_endpoint, until_subscribed, wait_until
+from fleet_testing import until_subscribed
 
+from loopback_ports import free_endpoint
 from robocloud.errors import InvalidInput
 from robocloud.fleet import (
     Ack,
@@ -20,6 +21,7 @@ from robocloud.fleet import (
     open_router,
     wait_for_liveliness,
 )
+from waiting import wait_until
 
 GO = Assign(request_id="r-1", location=[10.0, 0.0], capabilities=["grabber"])
 NOW = time.time()

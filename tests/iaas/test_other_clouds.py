@@ -6,7 +6,7 @@ from __future__ import annotations
 import contextlib
 import json
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from typing import Any
 
 import pytest
@@ -18,15 +18,9 @@ from robocloud.fleet import keys, open_client
 from robocloud.iaas.app import create_app
 from robocloud.iaas.config import Settings
 from robocloud.storage import MemoryRequestStore
+from waiting import wait_until
 
 KEY = {"Authorization": "Bearer key-1"}
-
-
-def wait_until(what: str, check: Callable[[], bool], timeout: float = 10.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not check():
-        assert time.monotonic() < deadline, f"timed out waiting for {what}"
-        time.sleep(0.05)
 
 
 def robot_state(robot_id: str, capability: str, seq: int) -> bytes:
@@ -53,8 +47,9 @@ def two_clouds() -> Iterator[tuple[TestClient, TestClient, int, zenoh.Session]]:
         client_b = stack.enter_context(TestClient(create_app(b, store=MemoryRequestStore())))
         robot = open_client([f"tcp/127.0.0.1:{b_zenoh}"])
         stack.callback(robot.close)
-        wait_until("each cloud to see the other", lambda: all(
-            len(c.get("/v1/clouds", headers=KEY).json()) == 2 for c in (client_a, client_b)))
+        wait_until(lambda: all(
+            len(c.get("/v1/clouds", headers=KEY).json()) == 2 for c in (client_a, client_b)),
+            10.0, "each cloud to see the other")
         yield client_a, client_b, a_port, robot
 
 
@@ -64,8 +59,9 @@ def test_a_request_asked_for_at_another_cloud_names_its_cloud_and_capabilities_a
     at_a, at_b, a_port, robot = two_clouds
     # A robot of cloud-b announces "water"; cloud-a has none.
     robot.put(keys.state_key("cloud-b", "b-0001"), robot_state("b-0001", "water", 1))
-    wait_until("cloud-b to hear its robot",
-               lambda: at_b.get("/healthz").json()["robots"] == 1)
+    wait_until(
+        lambda: at_b.get("/healthz").json()["robots"] == 1, 10.0, "cloud-b to hear its robot"
+    )
     task = {"location": [0.0, 0.0], "actuating": {"water": 1}, "max_robots": 1,
             "max_cost": 100.0, "max_time": 1.0}  # too short for the robot: rejected at once
     answer = at_a.post("/v1/requests", json=task, headers=KEY)

@@ -38,6 +38,7 @@ from robocloud.iaas.robot_list import (
     remote_rows,
 )
 from robocloud.storage import MemoryRequestStore, StoreUnavailable
+from waiting import wait_until
 
 KEY = "key-a"
 A = {"Authorization": f"Bearer {KEY}"}
@@ -137,16 +138,6 @@ def walk(client: httpx.Client, **params: Any) -> tuple[list[dict[str, Any]], int
             return robots, pages, total
         answer = client.get(following["url"])
         pages += 1
-
-
-def until(check: Callable[[], Any], timeout: float = 10.0) -> Any:
-    deadline = time.monotonic() + timeout
-    while True:
-        value = check()
-        if value:
-            return value
-        assert time.monotonic() < deadline, "timed out"
-        time.sleep(0.02)
 
 
 # -- pages ------------------------------------------------------------------------------
@@ -343,7 +334,10 @@ def test_metrics_move_with_a_request_s_life(client: httpx.Client, served: Served
     created = client.post("/v1/requests", json=TASK)
     assert created.status_code == 202
     rid = created.json()["id"]
-    until(lambda: client.get(f"/v1/requests/{rid}").json()["state"] in ("dispatched", "underway"))
+    wait_until(
+        lambda: client.get(f"/v1/requests/{rid}").json()["state"] in ("dispatched", "underway"),
+        10.0,
+    )
     during = scrape(client)
 
     def moved(name: str, **labels: str) -> float:
@@ -365,13 +359,13 @@ def test_metrics_move_with_a_request_s_life(client: httpx.Client, served: Served
                for r in client.get("/v1/robots", params={"capability": "kicker"}).json())
 
     assert client.post(f"/v1/requests/{rid}/cancel").json()["state"] == "canceled"
-    after = until(lambda: (s := scrape(client)) and value(
+    after = wait_until(lambda: (s := scrape(client)) and value(
         s, "robocloud_command_ack_seconds_count", command="stop") > value(
-        before, "robocloud_command_ack_seconds_count", command="stop") and s)
+        before, "robocloud_command_ack_seconds_count", command="stop") and s, 10.0)
     assert value(after, "robocloud_requests_finished_total", outcome="canceled") - value(
         before, "robocloud_requests_finished_total", outcome="canceled") == 1
-    until(lambda: sum(value(scrape(client), "robocloud_requests_active", state=s)
-                      for s in ("received", "selecting", "dispatched", "underway")) == 0)
+    wait_until(lambda: sum(value(scrape(client), "robocloud_requests_active", state=s)
+                      for s in ("received", "selecting", "dispatched", "underway")) == 0, 10.0)
 
 
 def test_store_errors_are_counted(client: httpx.Client, served: Served) -> None:

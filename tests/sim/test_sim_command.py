@@ -10,11 +10,12 @@ import time
 import httpx
 import pytest
 from prometheus_client.parser import text_string_to_metric_families
-from sim_testing import free_endpoint, wait_until
 
+from loopback_ports import free_endpoint
 from robocloud.errors import InvalidInput
 from robocloud.fleet import Assign, ZenohRobotLink, open_router
 from robocloud.sim.command import add_sim_arguments, main, sim_command
+from waiting import wait_until
 
 
 def scrape(port: int) -> dict[tuple[str, tuple[tuple[str, str], ...]], float]:

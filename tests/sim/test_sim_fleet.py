@@ -8,8 +8,8 @@ from typing import Any
 
 import pytest
 import zenoh
-from sim_testing import free_endpoint, wait_until
 
+from loopback_ports import free_endpoint
 from robocloud.errors import InvalidInput
 from robocloud.fleet import (
     Ack,
@@ -22,6 +22,7 @@ from robocloud.fleet import (
     wait_for_liveliness,
 )
 from robocloud.sim.fleet import FleetSimulator
+from waiting import wait_until
 
 CLOUD = "cloud-t"
 ROBOTS = 30

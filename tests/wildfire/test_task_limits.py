@@ -3,8 +3,7 @@
 from __future__ import annotations
 
 import copy
-import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from typing import Any
 
 import pytest
@@ -19,6 +18,7 @@ from robocloud.storage import MemoryRequestStore
 from robocloud.wildfire import create_wildfire_app
 from robocloud.wildfire.config import WildfireSettings
 from robocloud.wildfire.task_limits import task_limits
+from waiting import wait_until
 
 
 @pytest.fixture(scope="module")
@@ -75,16 +75,6 @@ def test_a_bound_the_document_does_not_state_is_left_to_the_iaas(
     assert limits["count"] == {"min": 1, "max": MAX_COUNT}
 
 
-def until(check: Callable[[], Any], timeout: float = 5.0) -> Any:
-    deadline = time.monotonic() + timeout
-    while True:
-        value = check()
-        if value:
-            return value
-        assert time.monotonic() < deadline, "timed out"
-        time.sleep(0.02)
-
-
 def _listings(iaas: FakeIaas) -> int:
     """How many times ``iaas`` was asked for its newest requests (once a tick)."""
     return sum(c.method == "GET" and c.url.path == "/v1/requests" for c in iaas.calls)
@@ -102,13 +92,13 @@ def test_the_server_hands_the_page_the_bounds_of_the_iaas_it_uses(
                                 poll_timeout=0.5, timeout=1.0)
     app = create_wildfire_app(settings, transport=FakeFederation(cloud_a, cloud_b).transport())
     with TestClient(app) as client:
-        limits = until(lambda: client.get("/api/config").json()["limits"])
+        limits = wait_until(lambda: client.get("/api/config").json()["limits"])
         assert limits["count"] == {"min": 1, "max": 7}
         assert limits["max_robots"] == {"min": 1, "max": MAX_ROBOTS}
         # Each tick reads an IaaS's bounds (while the page has none) before its
         # newest requests: three more reads of those from each IaaS are three
         # more ticks in which it could have been asked again.
         listed = {iaas: _listings(iaas) for iaas in (cloud_a, cloud_b)}
-        until(lambda: all(_listings(iaas) >= n + 3 for iaas, n in listed.items()))
+        wait_until(lambda: all(_listings(iaas) >= n + 3 for iaas, n in listed.items()))
     asked = [c for c in cloud_a.calls + cloud_b.calls if c.url.path == "/openapi.json"]
     assert sorted(c.url.host for c in asked) == ["cloud-a.test", "cloud-b.test"]

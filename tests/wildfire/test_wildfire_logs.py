@@ -4,9 +4,7 @@ each call to an IaaS only at DEBUG."""
 from __future__ import annotations
 
 import logging
-import time
-from collections.abc import Callable, Iterator
-from typing import Any
+from collections.abc import Iterator
 
 import pytest
 from fake_iaas import KEY, FakeFederation, FakeIaas, robot
@@ -16,17 +14,10 @@ from robocloud.wildfire import create_wildfire_app
 from robocloud.wildfire.command import quiet_iaas_calls
 from robocloud.wildfire.config import WildfireSettings
 from robocloud.wildfire.live import one_line
+from waiting import wait_until
 
 TASK = {"location": [100.0, 200.0], "actuating": {"grabber": 1}, "max_robots": 3,
         "max_cost": 10.0, "max_time": 60.0}
-
-
-def until(check: Callable[[], Any], timeout: float = 5.0) -> Any:
-    deadline = time.monotonic() + timeout
-    while not (value := check()):
-        assert time.monotonic() < deadline, "timed out"
-        time.sleep(0.02)
-    return value
 
 
 @pytest.fixture
@@ -66,7 +57,7 @@ def test_info_says_what_happened_to_requests_and_clouds_not_each_call(
     quiet_iaas_calls(debug=False)
     caplog.set_level(logging.INFO)
     with serve(a, b) as client:
-        until(lambda: len(client.get("/api/robots").json()) == 2)
+        wait_until(lambda: len(client.get("/api/robots").json()) == 2)
         rid = client.post("/api/requests", json=TASK).json()["id"]
         assert said(caplog, f"request {rid} sent to cloud-a (http://cloud-a.test): received.")
         refused = client.post("/api/requests", json={**TASK, "location": [-5.0, 0.0]})
@@ -76,10 +67,10 @@ def test_info_says_what_happened_to_requests_and_clouds_not_each_call(
         assert said(caplog, f"request {rid} canceled by the operator at cloud-a")
         assert said(caplog, f"Request {rid} is canceled.")  # a state change
         b.down = True
-        until(lambda: said(caplog, "cloud-b is down: its IaaS at http://cloud-b.test does not "
+        wait_until(lambda: said(caplog, "cloud-b is down: its IaaS at http://cloud-b.test does not "
                                    "answer", logging.WARNING))
         b.down = False
-        until(lambda: said(caplog, "cloud-b is back"))
+        wait_until(lambda: said(caplog, "cloud-b is back"))
     # Each IaaS call (httpx's "HTTP Request: ..." lines) stayed out of INFO.
     assert a.calls and not [r for r in caplog.records if r.name.startswith("httpx")]
 
@@ -91,7 +82,7 @@ def test_debug_shows_each_call(clouds: tuple[FakeIaas, FakeIaas],
     quiet_iaas_calls(debug=True)
     caplog.set_level(logging.DEBUG)
     with serve(a, b) as client:
-        until(lambda: len(client.get("/api/robots").json()) == 2)
+        wait_until(lambda: len(client.get("/api/robots").json()) == 2)
     calls = [r for r in caplog.records if r.getMessage().startswith("HTTP Request:")]
     assert calls and all(r.levelno == logging.DEBUG for r in calls)
 

@@ -11,9 +11,8 @@ import os
 import re
 import subprocess
 import sys
-import time
 import zlib
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -34,19 +33,10 @@ from robocloud.wildfire.command import (
 )
 from robocloud.wildfire.config import Forest, WildfireSettings
 from robocloud.wildfire.fleet_view import capability_kinds
+from waiting import wait_until
 
 TASK = {"location": [100.0, 200.0], "actuating": {"grabber": 1}, "max_robots": 3,
         "max_cost": 10.0, "max_time": 60.0}
-
-
-def until(check: Callable[[], Any], timeout: float = 5.0) -> Any:
-    deadline = time.monotonic() + timeout
-    while True:
-        value = check()
-        if value:
-            return value
-        assert time.monotonic() < deadline, "timed out"
-        time.sleep(0.02)
 
 
 @pytest.fixture
@@ -76,7 +66,7 @@ def client(cloud_a: FakeIaas, cloud_b: FakeIaas) -> Iterator[TestClient]:
     app = create_wildfire_app(settings(cloud_a, cloud_b),
                               transport=FakeFederation(cloud_a, cloud_b).transport())
     with TestClient(app) as test_client:
-        until(lambda: len(test_client.get("/api/robots").json()) == 3)
+        wait_until(lambda: len(test_client.get("/api/robots").json()) == 3)
         yield test_client
 
 
@@ -142,7 +132,9 @@ def test_the_fleet_capabilities_clouds_and_config(client: TestClient) -> None:
         {"name": "light", "kind": "sensing", "robots": 2, "idle": 1},
         {"name": "sonar", "kind": "sensing", "robots": 1, "idle": 1},
     ]
-    clouds = until(lambda: [c for c in client.get("/api/clouds").json() if c["status"] == "up"])
+    clouds = wait_until(
+        lambda: [c for c in client.get("/api/clouds").json() if c["status"] == "up"]
+    )
     assert [(c["name"], c["robots"], c["idle"], c["iaas"]) for c in clouds] == [
         ("cloud-a", 2, 1, "http://cloud-a.test"), ("cloud-b", 1, 1, "http://cloud-b.test")]
     assert len({c["colour"] for c in clouds}) == 2
@@ -205,7 +197,7 @@ def test_the_fleet_is_read_page_after_page(cloud_a: FakeIaas) -> None:
     cloud_a.robots_page = 2
     app = create_wildfire_app(settings(cloud_a), transport=FakeFederation(cloud_a).transport())
     with TestClient(app) as client:
-        robots = until(lambda: len(got := client.get("/api/robots").json()) == 5 and got)
+        robots = wait_until(lambda: len(got := client.get("/api/robots").json()) == 5 and got)
     assert sorted(r["id"] for r in robots) == [r["id"] for r in cloud_a.robots]
     pages = [c for c in cloud_a.calls if c.url.path == "/v1/robots"][:3]
     assert [c.url.params.get("cursor") for c in pages] == [None, "2", "4"]
@@ -229,7 +221,7 @@ def test_metrics_count_pages_streams_sends_and_upstream_errors(
     assert client.post("/api/requests", json=TASK).status_code == 202
     assert client.post("/api/requests", json={**TASK, "location": [-1e6, 0]}).status_code == 422
     cloud_a.down = True
-    until(lambda: scrape()[("wildfire_upstream_errors_total", (("iaas", cloud_a.url),))] > 0)
+    wait_until(lambda: scrape()[("wildfire_upstream_errors_total", (("iaas", cloud_a.url),))] > 0)
     cloud_a.down = False
     after = scrape()
     assert after[("wildfire_page_loads_total", ())] == 1
@@ -269,7 +261,7 @@ def test_a_send_without_an_answer_is_unknown_and_its_retries_stay_with_that_iaas
                              "delivery": "unknown"}
     # cloud-a is down now and cloud-b answers, but the key may be at cloud-a: it waits for it.
     cloud_a.hang_sends, cloud_a.down = False, True
-    until(lambda: client.get("/api/health").json()["endpoints"][0]["ok"] is False)
+    wait_until(lambda: client.get("/api/health").json()["endpoints"][0]["ok"] is False)
     again = client.post("/api/requests", json=TASK, headers={"Idempotency-Key": "k-2"})
     assert again.status_code == 502
     assert again.json()["delivery"] == "none"
@@ -593,6 +585,6 @@ def test_a_lying_fleet_is_cut_to_what_the_page_can_show(cloud_a: FakeIaas) -> No
     cloud_a.listing = [{"cloud": f"cloud-{i}"} for i in range(100)]
     app = create_wildfire_app(settings(cloud_a), transport=FakeFederation(cloud_a).transport())
     with TestClient(app) as client:
-        until(lambda: client.get("/api/robots").json())
+        wait_until(lambda: client.get("/api/robots").json())
         assert [r["id"] for r in client.get("/api/robots").json()] == ["a-0002"]
-        assert len(until(lambda: client.get("/api/clouds").json())) <= 64
+        assert len(wait_until(lambda: client.get("/api/clouds").json())) <= 64

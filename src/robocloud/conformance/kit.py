@@ -66,6 +66,8 @@ from robocloud.fleet.messages import Assign, Cancel, State
 log = logging.getLogger(__name__)
 T = TypeVar("T")
 
+ROUTED_WITHIN = 2.0  # seconds for the robot's queryable to reach the kit once it is heard
+
 __all__ = ["RULES", "Result", "RobotCheck", "Timing"]
 
 
@@ -236,17 +238,19 @@ class RobotCheck:
                 f"{len(self.io.all_heard())} messages came on the state key, none of them a valid "
                 "state (see state-schema)."
             )
-        time.sleep(0.3)  # the robot's queryable is routed with its publisher, give it a moment
+        self.io.wait_routed(ROUTED_WITHIN)  # else the assign tells what went wrong
         return valid.state, f"first state {heard[0].at:.1f} s into the check."
 
     def _idle_at_start(self) -> tuple[str, list[float], float, str]:
-        heard = self.io.wait_state(idle, 10.0, self.io.now() - 0.01)
-        if heard is None or heard.state is None:
-            raise Failed(
-                "the robot did not become idle within 10 s "
-                f"(it reported {describe(self.io.latest())})."
-            )
-        state = heard.state
+        state = self.io.latest()  # as it is now (join has heard it), else the next idle one
+        if state is None or not idle(state):
+            heard = self.io.wait_state(idle, 10.0, self.io.now() - 0.01)
+            if heard is None or heard.state is None:
+                raise Failed(
+                    "the robot did not become idle within 10 s "
+                    f"(it reported {describe(self.io.latest())})."
+                )
+            state = heard.state
         capabilities = state.capabilities
         if not capabilities:
             raise Failed("the robot has no capability, so no task can be given to it.")
@@ -485,12 +489,12 @@ class RobotCheck:
         within = self.timing.report_within
         heard = self.io.wait_state(lambda s: not working_on(s, rid), within, told)
         if heard is None:
-            since = self.io.states(told)
-            did = "still reported it" if since else "sent no state"
+            did = f"still reported it {within:g} s later"
+            if not self.io.states(told):
+                did = f"sent no state within {within:g} s"
             raise Failed(
-                f"{context}the robot acknowledged the cancel of {rid} but {did} {within:g} s "
-                "later; after a cancel a robot stops where it is and reports status idle and "
-                "no task, at once."
+                f"{context}the robot acknowledged the cancel of {rid} but {did}; after a cancel "
+                "a robot stops where it is and reports status idle and no task, at once."
             )
         time.sleep(self.timing.watch)
         for later in self.io.states(heard.at):
@@ -587,7 +591,7 @@ class RobotCheck:
         after = heard.state
         took = heard.at - back
         if working_on(after, rid):
-            time.sleep(0.3)  # routes to the robot's queryable
+            self.io.wait_routed(ROUTED_WITHIN)  # else the cancel tells what went wrong
             stop = self._ask(Cancel(request_id=rid))  # the request is over for this "IaaS"
             assert stop.ack is not None
             if not stop.ack.ok:

@@ -312,8 +312,9 @@ def test_a_robot_that_omits_a_required_field_fails_the_state_rule_named_by_field
     assert NoKindRobot.heard_errors[0]["field"] == "kind"
 
 
-# Tasks of 2 s of travel: the kit's second after the cancel ends well before the task would.
-@check_first(lambda: run_with_robot(DeafRobot, travel=2.0))
+# Tasks of 1.5 s of travel and 1 s of work: the kit's second after the cancel (sent right
+# after the assign) ends 1.5 s before the task would end by itself.
+@check_first(lambda: run_with_robot(DeafRobot, travel=1.5))
 def test_a_robot_that_ignores_cancel_fails_the_cancel_rule(checked: dict[str, Result]) -> None:
     results = checked
     cancel = results["cancel"]

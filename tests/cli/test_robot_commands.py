@@ -37,6 +37,7 @@ CHECK = ["robot-check", "--connect", "tcp/127.0.0.1:17999", "--cloud", "cloud-a"
         (["--connect", "nowhere"], "--connect 'nowhere' is not a Zenoh endpoint"),
         (["--ack-timeout", "0"], "--ack-timeout must be more than 0 and at most 3600, not 0.0."),
         (["--outage", "nan"], "--outage must be more than 0 and at most 3600, not nan."),
+        (["--watch", "-1"], "--watch must be more than 0 and at most 3600, not -1.0."),
     ],
 )
 def test_robot_check_refuses_wrong_arguments(

@@ -145,10 +145,10 @@ def join(world: World, interface: str,
 @pytest.mark.parametrize("world", ["robots", "fleet"], indirect=True)
 def test_an_agv_joins_takes_a_task_and_finishes_it(world: World, interface: str) -> None:
     link, gateway, _ = world
-    robot, vehicle = join(world, interface, "agv-1", 0.0, speed=10.0)
+    robot, vehicle = join(world, interface, "agv-1", 0.0, speed=40.0)
     state = link.states()[robot]
     assert state.status == "idle" and state.position == [0.0, 0.0] and state.battery == 90.0
-    assert state.kind == "test-agv" and state.speed == 10.0
+    assert state.kind == "test-agv" and state.speed == 40.0
     assert set(state.capabilities) == {"lift"}
     go = Assign(request_id="req-1", location=[20.0, 0.0], capabilities=["lift"])
     ack = link.assign(robot, go)
@@ -333,7 +333,7 @@ def test_a_replayed_old_state_is_ignored_and_the_request_completes(
     world: World, interface: str, mosquitto: tuple[str, int]
 ) -> None:
     link, gateway, _ = world
-    robot, vehicle = join(world, interface, "agv-5", 0.0, speed=10.0)
+    robot, vehicle = join(world, interface, "agv-5", 0.0, speed=20.0)
     old = vehicle.state()  # no order in it: taken as new, it would say the order was dropped
     assert link.assign(robot, Assign(request_id="req-6", location=[20.0, 0.0],
                                      capabilities=["lift"])).ok  # fmt: skip
@@ -377,11 +377,14 @@ def test_an_order_the_agv_never_shows_is_cancelled_and_its_task_fails_with_a_rea
     assert 'robocloud_vda5050_agvs{status="idle"} 1.0' in scraped
 
 
+STATE_EVERY = 0.3  # seconds: the frozen AGV's state interval (its factsheet's)
+
+
 def test_a_frozen_agv_without_last_will_is_offline_within_three_state_intervals(
     world: World, interface: str
 ) -> None:
     link, _, _ = world
-    robot, vehicle = join(world, interface, "agv-7", 0.0, speed=1.0)
+    robot, vehicle = join(world, interface, "agv-7", 0.0, speed=1.0, state_interval=STATE_EVERY)
     assert link.assign(robot, Assign(request_id="req-8", location=[50.0, 0.0],
                                      capabilities=["lift"])).ok  # fmt: skip
     wait_until(lambda: link.states()[robot].position[0] > 0.0)
@@ -391,14 +394,16 @@ def test_a_frozen_agv_without_last_will_is_offline_within_three_state_intervals(
     link.on_state(lambda s: heard.append(s.sent_at) if s.id == robot else None)
     offline = wait_until(lambda: link.states()[robot].status == "offline", 10.0)
     assert offline
-    # Its factsheet says a state a second: silent for 3 s is offline (and a tick, a publish).
-    assert time.monotonic() - frozen < 3.0 + 1.5
+    # Its factsheet says a state every 0.3 s: silent for three of them is offline (and a
+    # tick, a publish).
+    assert time.monotonic() - frozen < 3 * STATE_EVERY + 1.5
     state = link.states()[robot]
     assert state.sent_at <= frozen_wall  # the AGV's own last word, however often re-published
     assert heard and max(heard) <= frozen_wall
     last = state.last_task
     assert last is not None and last.phase == "failed" and last.reason is not None
-    assert "the AGV has been silent for" in last.reason and "over the 3 s allowed" in last.reason
+    assert "the AGV has been silent for" in last.reason
+    assert f"over the {3 * STATE_EVERY:g} s allowed" in last.reason
 
 
 def test_after_a_restart_an_order_is_cancelled_unless_the_iaas_assigns_it_again(
@@ -406,7 +411,7 @@ def test_after_a_restart_an_order_is_cancelled_unless_the_iaas_assigns_it_again(
 ) -> None:
     link, gateway, _ = world
     dropped, lost = join(world, interface, "agv-8", 0.0, speed=1.0)
-    kept, found = join(world, interface, "agv-9", 100.0, speed=2.0)
+    kept, found = join(world, interface, "agv-9", 100.0, speed=4.0)
     mine = Assign(request_id="req-9", location=[50.0, 0.0], capabilities=["lift"])
     theirs = Assign(request_id="req-10", location=[110.0, 0.0], capabilities=["lift"])
     assert link.assign(dropped, mine).ok and link.assign(kept, theirs).ok

@@ -91,6 +91,7 @@ class Vehicle:
         log: Path | None = None,
         ignore_orders: bool = False,
         keepalive: int = 2,
+        state_interval: float = 1.0,
     ) -> None:
         self.base = f"{interface}/v2/{manufacturer}/{serial}"
         self.manufacturer, self.serial = manufacturer, serial
@@ -99,6 +100,7 @@ class Vehicle:
         self.speed, self.action_time, self.battery = speed, action_time, battery
         self.log = log
         self.ignore_orders = ignore_orders
+        self.state_interval = state_interval  # seconds: a state this often, as its factsheet says
         self.lock = threading.RLock()
         self.received: list[dict[str, Any]] = []  # {"topic", "message", "errors"}
         self.headers: dict[str, int] = {}
@@ -162,7 +164,7 @@ class Vehicle:
                                    "heightMax": 1.0, "width": 1.0, "length": 1.5},
             "protocolLimits": {"maxStringLens": {}, "maxArrayLens": {},
                                "timing": {"minOrderInterval": 0.1, "minStateInterval": 0.1,
-                                          "defaultStateInterval": 1.0}},
+                                          "defaultStateInterval": self.state_interval}},
             "protocolFeatures": {
                 "optionalParameters": [],
                 "agvActions": [
@@ -269,7 +271,7 @@ class Vehicle:
         while not self.stop.wait(step):
             with self.lock:
                 changed = self._advance(step)
-            if changed or time.monotonic() - last_state >= 1.0:
+            if changed or time.monotonic() - last_state >= self.state_interval:
                 self.publish_state()
                 last_state = time.monotonic()
 

@@ -13,6 +13,11 @@ from loopback_ports import free_port
 
 pytestmark = pytest.mark.slow
 
+# The kit's windows for this robot (the gateway publishes once a second and at once
+# on every change): tasks of 1 s of travel (2 m at 2 m/s), last_task watched for
+# 1.5 s, an outage of 0.5 s; the deadlines keep their documented values.
+OPTIONS = ["--travel", "1", "--linger", "1.5", "--outage", "0.5"]
+
 
 def test_robot_check_passes_against_the_gateway_and_a_stand_in(tmp_path: Path) -> None:
     robot_port, kit = free_port(), f"tcp/127.0.0.1:{free_port()}"
@@ -29,7 +34,7 @@ def test_robot_check_passes_against_the_gateway_and_a_stand_in(tmp_path: Path) -
     # The kit is the router the gateway connects to, so it starts first; the gateway waits.
     check = subprocess.Popen(
         [sys.executable, "-m", "robocloud.cli.main", "robot-check", "--connect", kit,
-         "--cloud", "cloud-a", "--robot", "tb-1"],
+         "--cloud", "cloud-a", "--robot", "tb-1", *OPTIONS],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
     )  # fmt: skip
     gateway = subprocess.Popen(

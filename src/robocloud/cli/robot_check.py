@@ -17,10 +17,48 @@ import argparse
 import logging
 import sys
 
+from robocloud.conformance.rules import Timing
 from robocloud.errors import InvalidInput
 
 EXIT_PASSED = 0
 EXIT_FAILED = 1
+
+# The kit's waits (rules.Timing): the defaults are docs/protocol.md's, for a real
+# robot; a robot quick to observe (a simulator at a speed-up) may be given shorter.
+TIMING_OPTIONS: tuple[tuple[str, float, str], ...] = (
+    ("--ack-timeout", Timing.ack_timeout, "the deadline for an ack, as the IaaS's --ack-timeout"),
+    ("--join-timeout", Timing.join_timeout, "how long to wait for the robot's first state"),
+    ("--task-timeout", Timing.task_timeout, "the longest the kit waits for a task to end"),
+    ("--outage", Timing.outage, "how long the kit stays away in the reconnect rule"),
+    (
+        "--reconnect-timeout",
+        Timing.reconnect_timeout,
+        "how long the kit waits for a state after the outage",
+    ),
+    (
+        "--overrun-min",
+        Timing.overrun_min,
+        "the watchdog's least tolerance past a task's expected time, as the IaaS's --overrun-min",
+    ),
+    ("--travel", Timing.travel, "seconds of travel, at the robot's speed, of the kit's tasks"),
+    (
+        "--report-within",
+        Timing.report_within,
+        "the deadline for a state that shows a command's change (a new task, a stop)",
+    ),
+    (
+        "--watch",
+        Timing.watch,
+        "how long the kit watches, after a cancel or a refused command, that the robot does "
+        "not work on the request",
+    ),
+    ("--linger", Timing.linger, "how long the kit watches last_task after a task ended"),
+    (
+        "--clean-within",
+        Timing.clean_within,
+        "the deadline for a robot told to cancel to be idle before the next scenario",
+    ),
+)
 
 
 def add_robot_check_arguments(parser: argparse.ArgumentParser) -> None:
@@ -39,38 +77,18 @@ def add_robot_check_arguments(parser: argparse.ArgumentParser) -> None:
         help="connect to a router already at ENDPOINT as a client instead of being the router",
     )
     parser.add_argument(
-        "--ack-timeout",
-        type=float,
-        default=2.0,
-        metavar="SECONDS",
-        help="the deadline for an ack, as the IaaS's --ack-timeout (default 2)",
-    )
-    parser.add_argument(
         "--capability",
         metavar="NAME",
         help="the capability the kit's tasks use (default: the robot's quickest)",
     )
-    parser.add_argument(
-        "--join-timeout",
-        type=float,
-        default=15.0,
-        metavar="SECONDS",
-        help="how long to wait for the robot's first state (default 15)",
-    )
-    parser.add_argument(
-        "--task-timeout",
-        type=float,
-        default=120.0,
-        metavar="SECONDS",
-        help="the longest the kit waits for a task to end (default 120)",
-    )
-    parser.add_argument(
-        "--outage",
-        type=float,
-        default=2.0,
-        metavar="SECONDS",
-        help="how long the kit stays away in the reconnect rule (default 2)",
-    )
+    for flag, default, what in TIMING_OPTIONS:
+        parser.add_argument(
+            flag,
+            type=float,
+            default=default,
+            metavar="SECONDS",
+            help=f"{what} (default {default:g})",
+        )
     parser.add_argument(
         "--log-level",
         default="warning",
@@ -87,10 +105,9 @@ def robot_check_command(args: argparse.Namespace) -> int:
     check_chunk(args.cloud, "--cloud")
     check_chunk(args.robot, "--robot")
     check_endpoints([args.connect], "--connect")
-    for flag in ("ack_timeout", "join_timeout", "task_timeout", "outage"):
-        value = getattr(args, flag)
+    for name, _, _ in TIMING_OPTIONS:
+        value = getattr(args, _field(name))
         if not 0 < value <= 3600:  # also refuses nan
-            name = "--" + flag.replace("_", "-")
             raise InvalidInput(f"{name} must be more than 0 and at most 3600, not {value}.", name)
     logging.basicConfig(
         level=args.log_level.upper(), format="robot-check %(levelname)s: %(message)s"
@@ -101,10 +118,9 @@ def robot_check_command(args: argparse.Namespace) -> int:
         args.cloud,
         args.robot,
         client=args.client,
-        ack_timeout=args.ack_timeout,
-        join_timeout=args.join_timeout,
-        task_timeout=args.task_timeout,
-        outage=args.outage,
+        timing=Timing(
+            **{_field(name): getattr(args, _field(name)) for name, _, _ in TIMING_OPTIONS}
+        ),
         capability=args.capability,
         progress=say_on_stderr if verbose else say_nothing,
     )
@@ -121,6 +137,11 @@ def robot_check_command(args: argparse.Namespace) -> int:
     failed = sum(not r.passed for r in results)
     print(f"{len(results) - failed} passed, {failed} failed")
     return EXIT_FAILED if failed else EXIT_PASSED
+
+
+def _field(flag: str) -> str:
+    """The Timing field of an option: --report-within, report_within."""
+    return flag.removeprefix("--").replace("-", "_")
 
 
 def say_on_stderr(line: str) -> None:

@@ -7,6 +7,6 @@ Layer: outer, like ``sim``: it uses ``fleet`` only.
 """
 
 from robocloud.conformance.kit import RobotCheck
-from robocloud.conformance.rules import RULES, Result
+from robocloud.conformance.rules import RULES, Result, Timing
 
-__all__ = ["RULES", "Result", "RobotCheck"]
+__all__ = ["RULES", "Result", "RobotCheck", "Timing"]

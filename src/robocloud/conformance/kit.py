@@ -15,7 +15,7 @@ the rules (``rules.py``)::
     cancel -> malformed-command -> late-ack -> reconnect
 
 Each scenario after ``idle`` starts from a clean robot: a task left over is
-cancelled and the robot must report idle within ``rules.CLEAN_WITHIN``, so one
+cancelled and the robot must report idle within ``Timing.clean_within``, so one
 failure does not show up again, misnamed, in the rules after it (they say
 "not checked" and why). ``done`` waits for the task's expected time plus the
 IaaS watchdog's tolerance (the larger of 50 % and 30 s); a robot still on it
@@ -38,18 +38,14 @@ from typing import TypeVar
 
 from robocloud.conformance.rules import (
     AT_LOCATION,
-    CLEAN_WITHIN,
     LATE_GRACE,
-    LINGER,
-    OVERRUN_AT_LEAST,
     PHASE_ORDER,
     RATE_SLACK,
     RECONNECT_TRAVEL,
-    REPORT_WITHIN,
     RULES,
-    TRAVEL,
     Failed,
     Result,
+    Timing,
     cite,
     describe,
     ended,
@@ -70,7 +66,9 @@ from robocloud.fleet.messages import Assign, Cancel, State
 log = logging.getLogger(__name__)
 T = TypeVar("T")
 
-__all__ = ["RULES", "Result", "RobotCheck"]
+ROUTED_WITHIN = 2.0  # seconds for the robot's queryable to reach the kit once it is heard
+
+__all__ = ["RULES", "Result", "RobotCheck", "Timing"]
 
 
 class RobotCheck:
@@ -83,29 +81,24 @@ class RobotCheck:
         robot: str,
         *,
         client: bool = False,
-        ack_timeout: float = 2.0,
-        join_timeout: float = 15.0,
-        task_timeout: float = 120.0,
-        outage: float = 2.0,
-        reconnect_timeout: float = 20.0,
+        timing: Timing | None = None,
         capability: str | None = None,
-        overrun_at_least: float = OVERRUN_AT_LEAST,
         progress: Callable[[str], None] = lambda line: None,
     ) -> None:
         self.endpoint = endpoint
         self.cloud = keys.check_chunk(cloud, "cloud")
         self.robot = keys.check_chunk(robot, "robot")
-        self.ack_timeout = ack_timeout
-        self.join_timeout = join_timeout
-        self.task_timeout = task_timeout
-        self.outage = outage
-        self.reconnect_timeout = reconnect_timeout
+        self.timing = timing = timing if timing is not None else Timing()
+        self.ack_timeout = timing.ack_timeout
         self.capability = capability
-        self.overrun_at_least = overrun_at_least
         self.say = progress
         self.run_id = secrets.token_hex(3)
         self.io = Transport(
-            endpoint, self.cloud, self.robot, client=client, reply_timeout=ack_timeout + LATE_GRACE
+            endpoint,
+            self.cloud,
+            self.robot,
+            client=client,
+            reply_timeout=timing.ack_timeout + LATE_GRACE,
         )
         self._gaps: list[tuple[float, float]] = []  # (from, to): outages the kit made
         self._results: dict[str, Result] = {}
@@ -171,12 +164,13 @@ class RobotCheck:
             self._command(Cancel(request_id=rid)).answered.wait(self.ack_timeout)
         elif latest is not None and idle(latest):
             return
-        heard = self.io.wait_state(idle, CLEAN_WITHIN, self.io.now() - 0.01)
+        within = self.timing.clean_within
+        heard = self.io.wait_state(idle, within, self.io.now() - 0.01)
         if heard is None:
             told = f"the kit cancelled {rid}, as the IaaS does when a request no longer needs "
             told += "the robot, and " if rid else ""
             raise Failed(
-                f"not checked: {told}the robot did not become idle within {CLEAN_WITHIN:g} s "
+                f"not checked: {told}the robot did not become idle within {within:g} s "
                 f"(it reported {describe(self.io.latest())}); after a cancel a robot stops "
                 "where it is and reports status idle with task null"
             )
@@ -231,30 +225,32 @@ class RobotCheck:
     # -- the rules ----------------------------------------------------------------
 
     def _join(self) -> tuple[State, str]:
-        heard = self.io.wait_heard(self.join_timeout)
+        heard = self.io.wait_heard(self.timing.join_timeout)
         if not heard:
             raise Failed(
                 f"no state on {keys.state_key(self.cloud, self.robot)} within "
-                f"{self.join_timeout:g} s: is the robot connected to {self.endpoint}, with cloud "
-                f"{self.cloud} and id {self.robot}?"
+                f"{self.timing.join_timeout:g} s: is the robot connected to {self.endpoint}, "
+                f"with cloud {self.cloud} and id {self.robot}?"
             )
-        valid = self.io.wait_state(lambda state: True, self.join_timeout, 0.0)
+        valid = self.io.wait_state(lambda state: True, self.timing.join_timeout, 0.0)
         if valid is None or valid.state is None:
             raise Failed(
                 f"{len(self.io.all_heard())} messages came on the state key, none of them a valid "
                 "state (see state-schema)."
             )
-        time.sleep(0.3)  # the robot's queryable is routed with its publisher, give it a moment
+        self.io.wait_routed(ROUTED_WITHIN)  # else the assign tells what went wrong
         return valid.state, f"first state {heard[0].at:.1f} s into the check."
 
     def _idle_at_start(self) -> tuple[str, list[float], float, str]:
-        heard = self.io.wait_state(idle, 10.0, self.io.now() - 0.01)
-        if heard is None or heard.state is None:
-            raise Failed(
-                "the robot did not become idle within 10 s "
-                f"(it reported {describe(self.io.latest())})."
-            )
-        state = heard.state
+        state = self.io.latest()  # as it is now (join has heard it), else the next idle one
+        if state is None or not idle(state):
+            heard = self.io.wait_state(idle, 10.0, self.io.now() - 0.01)
+            if heard is None or heard.state is None:
+                raise Failed(
+                    "the robot did not become idle within 10 s "
+                    f"(it reported {describe(self.io.latest())})."
+                )
+            state = heard.state
         capabilities = state.capabilities
         if not capabilities:
             raise Failed("the robot has no capability, so no task can be given to it.")
@@ -264,8 +260,8 @@ class RobotCheck:
             name = self.capability
         else:
             name = min(capabilities, key=lambda n: (capabilities[n].time, n))
-        target = location(state, state.speed * TRAVEL)
-        expected = TRAVEL + capabilities[name].time
+        target = location(state, state.speed * self.timing.travel)
+        expected = self.timing.travel + capabilities[name].time
         return (
             name,
             target,
@@ -282,11 +278,12 @@ class RobotCheck:
             raise Failed(f"the robot refused {sent.what}: {sent.ack.error or 'no reason given'}")
         acked = self.io.now()
         sent_at = sent.at - self.io.start
-        heard = self.io.wait_state(lambda s: working_on(s, rid), REPORT_WITHIN, sent_at)
+        within = self.timing.report_within
+        heard = self.io.wait_state(lambda s: working_on(s, rid), within, sent_at)
         if heard is None:
             raise Failed(
                 f"the robot acknowledged {sent.what} but no state showed it working on it "
-                f"within {REPORT_WITHIN:g} s (a robot publishes at once on every change)."
+                f"within {within:g} s (a robot publishes at once on every change)."
             )
         return (
             rid,
@@ -334,12 +331,12 @@ class RobotCheck:
         return f'refused: "{sent.ack.error}"'
 
     def _allowed(self, expected: float) -> float:
-        return expected + tolerance(expected, self.overrun_at_least)
+        return expected + tolerance(expected, self.timing.overrun_min)
 
     def _done(
         self, rid: str, target: list[float], expected: float, since: float
     ) -> tuple[float, str]:
-        timeout = min(self.task_timeout, self._allowed(expected))
+        timeout = min(self.timing.task_timeout, self._allowed(expected))
         left = max(0.0, since + timeout - self.io.now())
         heard = self.io.wait_state(lambda s: ended(s, rid), left, 0.0)
         if heard is None or heard.state is None:
@@ -353,7 +350,9 @@ class RobotCheck:
         if phase != "done":
             raise Failed(f"{rid} ended {phase}, not done.")
         if state.status != "idle":
-            heard_idle = self.io.wait_state(lambda s: s.status == "idle", REPORT_WITHIN, heard.at)
+            heard_idle = self.io.wait_state(
+                lambda s: s.status == "idle", self.timing.report_within, heard.at
+            )
             if heard_idle is None:
                 raise Failed(f"after finishing {rid} the robot is {state.status}, not idle.")
         off = math.dist(state.position, target)
@@ -380,7 +379,7 @@ class RobotCheck:
             )
         self._must_stop(
             rid,
-            self.io.now(),
+            stop,
             f"the robot was still on {rid} past its expected finish ({expected:g} s, "
             f"{allowed:g} s with the watchdog's tolerance) and the kit stopped it, as the "
             "IaaS's watchdog does; ",
@@ -390,7 +389,7 @@ class RobotCheck:
     def _progress(self, rid: str, since: float, target: list[float]) -> str:
         reports = [
             h.state
-            for h in self.io.states(since - REPORT_WITHIN)
+            for h in self.io.states(since - self.timing.report_within)
             if h.state is not None and h.state.task is not None and h.state.task.request_id == rid
         ]
         if not reports:
@@ -414,7 +413,8 @@ class RobotCheck:
         return f"{len(reports)} reports, phases {' -> '.join(phases)}."
 
     def _last_task(self, rid: str, ended_at: float) -> str:
-        until = max(ended_at, self.io.now()) + LINGER
+        linger = self.timing.linger
+        until = max(ended_at, self.io.now()) + linger
         time.sleep(max(0.0, until - self.io.now()))
         states = [h for h in self.io.states(ended_at) if h.state is not None]
         for heard in states:
@@ -427,7 +427,7 @@ class RobotCheck:
                     "its last finished task in last_task until it is given another, so an IaaS "
                     "that was down learns how it ended."
                 )
-        return f"kept in {len(states)} states over {LINGER:g} s."
+        return f"kept in {len(states)} states over {linger:g} s."
 
     def _cancel_after_finish(self, rid: str) -> str:
         """A cancel that crossed the robot's done: ok, and the done task stays in last_task."""
@@ -439,7 +439,7 @@ class RobotCheck:
                 f"the robot refused the cancel of {rid}, which it had finished: "
                 f"{sent.ack.error}; a robot with no task answers a cancel ok (nothing to stop)."
             )
-        time.sleep(REPORT_WITHIN)
+        time.sleep(self.timing.watch)
         for heard in self.io.states(told):
             assert heard.state is not None
             if not idle(heard.state) or not _keeps_done(heard, rid):
@@ -454,18 +454,17 @@ class RobotCheck:
     def _cancel(self, capability: str) -> str:
         state = self._idle_state()
         rid = self._request()
-        target = location(state, state.speed * TRAVEL)
+        target = location(state, state.speed * self.timing.travel)
         sent = self._ask(Assign(request_id=rid, location=target, capabilities=[capability]))
         assert sent.ack is not None
         if not sent.ack.ok:
             raise Failed(f"the robot refused {sent.what}: {sent.ack.error}")
-        if self.io.wait_state(lambda s: working_on(s, rid), REPORT_WITHIN, 0.0) is None:
-            raise Failed(f"the robot took {rid} but never reported working on it.")
+        self._reported(rid)
         stop = self._ask(Cancel(request_id=rid))
         assert stop.ack is not None
         if not stop.ack.ok:
             raise Failed(f"the robot refused the cancel of {rid}: {stop.ack.error}")
-        self._must_stop(rid, self.io.now())
+        self._must_stop(rid, stop)
         again = self._ask(Cancel(request_id=rid))
         assert again.ack is not None
         if not again.ack.ok:
@@ -475,16 +474,29 @@ class RobotCheck:
             )
         return "acknowledged, stopped and idle; a second cancel was ok too."
 
-    def _must_stop(self, rid: str, told: float, context: str = "") -> None:
-        """The robot stops working on ``rid`` within a second of ``told``, and stays stopped."""
-        heard = self.io.wait_state(lambda s: not working_on(s, rid), REPORT_WITHIN, told)
+    def _reported(self, rid: str) -> None:
+        if self.io.wait_state(lambda s: working_on(s, rid), self.timing.report_within, 0.0) is None:
+            raise Failed(f"the robot took {rid} but never reported working on it.")
+
+    def _must_stop(self, rid: str, stop: Sent, context: str = "") -> None:
+        """The robot stops working on ``rid`` within ``report_within`` of the cancel, and stays.
+
+        Counted from when the cancel was sent, not from its ack: a robot publishes
+        the change at once, and that state may come before its ack, or before the
+        kit has read the ack; the robot's next state may then be a second away.
+        """
+        told = stop.at - self.io.start
+        within = self.timing.report_within
+        heard = self.io.wait_state(lambda s: not working_on(s, rid), within, told)
         if heard is None:
+            did = f"still reported it {within:g} s later"
+            if not self.io.states(told):
+                did = f"sent no state within {within:g} s"
             raise Failed(
-                f"{context}the robot acknowledged the cancel of {rid} but still reported it "
-                f"{REPORT_WITHIN:g} s later; after a cancel a robot stops where it is and "
-                "reports status idle and no task."
+                f"{context}the robot acknowledged the cancel of {rid} but {did}; after a cancel "
+                "a robot stops where it is and reports status idle and no task, at once."
             )
-        time.sleep(1.0)
+        time.sleep(self.timing.watch)
         for later in self.io.states(heard.at):
             if later.state is not None and working_on(later.state, rid):
                 raise Failed(
@@ -524,7 +536,7 @@ class RobotCheck:
             if not sent.ack.error:
                 raise Failed(f"the robot refused {what} without a sentence in error.")
             errors.append(sent.ack.error)
-        time.sleep(REPORT_WITHIN)
+        time.sleep(self.timing.watch)
         for heard in self.io.states(since):
             if heard.state is not None and working_on(heard.state, rid):
                 raise Failed(f"after refusing a malformed command the robot worked on {rid}.")
@@ -537,12 +549,12 @@ class RobotCheck:
         """
         state = self._idle_state()
         rid = self._request()
-        target = location(state, state.speed * TRAVEL)
+        target = location(state, state.speed * self.timing.travel)
         assign = self._command(Assign(request_id=rid, location=target, capabilities=[capability]))
         cancel = self._command(Cancel(request_id=rid))  # the IaaS counted its ack as late
         assign.answered.wait(self.ack_timeout)
         cancel.answered.wait(self.ack_timeout)
-        time.sleep(REPORT_WITHIN)
+        time.sleep(self.timing.watch)
         latest = self.io.latest()
         if latest is not None and working_on(latest, rid):
             raise Failed(
@@ -562,30 +574,29 @@ class RobotCheck:
         assert sent.ack is not None
         if not sent.ack.ok:
             raise Failed(f"the robot refused {sent.what}: {sent.ack.error}")
-        if self.io.wait_state(lambda s: working_on(s, rid), REPORT_WITHIN, 0.0) is None:
-            raise Failed(f"the robot took {rid} but never reported working on it.")
+        self._reported(rid)
         went = self.io.now()
-        self.say(f"closing the kit's Zenoh session for {self.outage:g} s")
+        self.say(f"closing the kit's Zenoh session for {self.timing.outage:g} s")
         self.io.close()
-        time.sleep(self.outage)
+        time.sleep(self.timing.outage)
         self.io.open()
         back = self.io.now()
         self._gaps.append((went, back))
-        heard = self.io.wait_state(lambda s: True, self.reconnect_timeout, back)
+        heard = self.io.wait_state(lambda s: True, self.timing.reconnect_timeout, back)
         if heard is None or heard.state is None:
             raise Failed(
-                f"no state within {self.reconnect_timeout:g} s after the kit came back; a robot "
-                "reconnects by itself (a Zenoh client does) and keeps publishing."
+                f"no state within {self.timing.reconnect_timeout:g} s after the kit came back; a "
+                "robot reconnects by itself (a Zenoh client does) and keeps publishing."
             )
         after = heard.state
         took = heard.at - back
         if working_on(after, rid):
-            time.sleep(0.3)  # routes to the robot's queryable
+            self.io.wait_routed(ROUTED_WITHIN)  # else the cancel tells what went wrong
             stop = self._ask(Cancel(request_id=rid))  # the request is over for this "IaaS"
             assert stop.ack is not None
             if not stop.ack.ok:
                 raise Failed(f"after reconnecting, the robot refused the cancel of {rid}.")
-            self._must_stop(rid, self.io.now())
+            self._must_stop(rid, stop)
             return f"back {took:.1f} s after the outage still on {rid}; stopped when told."
         if finished_phase(after, rid) == "done":
             return f"back {took:.1f} s after the outage; {rid} had finished (last_task)."

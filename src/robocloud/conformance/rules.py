@@ -77,18 +77,41 @@ RULES: dict[str, Rule] = {
 }
 WORKING = frozenset({"travel", "work"})
 PHASE_ORDER = {"travel": 0, "work": 1, "done": 2, "failed": 2}
-REPORT_WITHIN = 1.0  # seconds from an ack to the state that shows the change
 RATE_SLACK = 0.3  # seconds of jitter tolerated over "at least once a second"
 LATE_GRACE = 3.0  # seconds the kit still listens for an ack past the deadline
-LINGER = 4.0  # seconds the kit watches last_task after a task ended (past the 3 s a task stays)
-TRAVEL = 2.0  # seconds of travel the kit's task asks for
 RECONNECT_TRAVEL = 30.0  # seconds of travel of the task that spans the outage
 AT_LOCATION = 1.0  # metres: how near the location "done" must be
-CLEAN_WITHIN = 3.0  # seconds for a robot told to cancel to report idle before a scenario
 # The IaaS's watchdog (docs/protocol.md, "Timing"): a robot is past its expected
-# finish when it has taken longer than expected plus the larger of these.
+# finish when it has taken longer than expected plus the larger of OVERRUN_SHARE
+# of it and ``Timing.overrun_min``.
 OVERRUN_SHARE = 0.5
-OVERRUN_AT_LEAST = 30.0
+
+
+@dataclass(frozen=True)
+class Timing:
+    """How long the kit waits for the robot and watches it, in seconds.
+
+    The defaults are those of docs/protocol.md and the IaaS, for a real robot;
+    each is an option of ``robocloud robot-check`` (``--report-within`` for
+    ``report_within``, ...). A robot that is quick to observe (a simulator at a
+    speed-up, a robot on loopback that publishes twice a second) can be checked
+    with shorter ones: the rules stay the same, only the windows shrink. A
+    deadline (``report_within``, ``clean_within``, the timeouts) ends as soon as
+    the robot meets it; a window (``watch``, ``linger``, ``outage``) is watched
+    to its end, so it should span a few of the robot's states.
+    """
+
+    ack_timeout: float = 2.0  # the IaaS's --ack-timeout: a later ack counts as a refusal
+    join_timeout: float = 15.0  # for the robot's first state
+    task_timeout: float = 120.0  # the longest the kit waits for a task to end
+    outage: float = 2.0  # how long the kit stays away in the reconnect rule
+    reconnect_timeout: float = 20.0  # for the robot's first state after the outage
+    overrun_min: float = 30.0  # the IaaS's --overrun-min: the watchdog's least tolerance
+    travel: float = 2.0  # seconds of travel (at the robot's speed) of the kit's tasks
+    report_within: float = 1.0  # from a command to the state that shows its change
+    watch: float = 1.0  # after a cancel or a refusal: the robot must not take the task up
+    linger: float = 4.0  # last_task watched after a task ended (past the 3 s a task stays)
+    clean_within: float = 3.0  # for a robot told to cancel to be idle before a scenario
 
 
 class Failed(Exception):
@@ -122,7 +145,7 @@ def cite(sentence: str, rule: str) -> str:
     return f"{sentence.rstrip('.')} ({where(rule)})."
 
 
-def tolerance(expected: float, at_least: float = OVERRUN_AT_LEAST) -> float:
+def tolerance(expected: float, at_least: float = Timing.overrun_min) -> float:
     """The watchdog's allowance past an expected time: the larger of 50 % and ``at_least``."""
     return max(OVERRUN_SHARE * expected, at_least)
 

@@ -155,6 +155,27 @@ class Transport:
         )
         return sent
 
+    def wait_routed(self, timeout: float) -> bool:
+        """Whether the robot's command queryable reached the kit's session within ``timeout``.
+
+        Its first state may come before its queryable is known here; a command sent
+        then would find nobody to answer it.
+        """
+        if self._session is None:
+            return False
+        querier = self._session.declare_querier(keys.cmd_key(self.cloud, self.robot))
+        try:
+            deadline = time.monotonic() + timeout
+            # A MatchingStatus, not the bool its stub says (eclipse-zenoh 1.x).
+            while not querier.matching_status.matching:  # type: ignore[attr-defined]
+                if time.monotonic() >= deadline:
+                    return False
+                time.sleep(0.01)
+            return True
+        finally:
+            with contextlib.suppress(zenoh.ZError):
+                querier.undeclare()  # type: ignore[no-untyped-call]
+
     # -- states -----------------------------------------------------------------------
 
     def wait_state(

@@ -166,7 +166,7 @@ class Ros2Gateway:
             with self._changed:
                 self._changed.wait_for(lambda: bool(self._outbox) or self._stop.is_set(), TICK)
                 outbox, self._outbox = self._outbox, []
-            for send in outbox:  # after the ack has gone: the command handler returned first
+            for send in outbox:  # after the command handler returned (its ack may still be going)
                 try:
                     send()
                 except Exception:

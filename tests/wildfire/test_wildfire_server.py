@@ -190,6 +190,7 @@ def test_the_live_stream_is_a_snapshot_then_deltas_gzipped(client: TestClient,
     assert first == "snapshot"
     assert snapshot["robots"]["columns"][:3] == ["id", "cloud", "status"]
     assert snapshot["config"]["currency"] == "credits"
+    assert snapshot["config"]["silent_after"] == 5.0
     assert {name for name, _ in deltas} == {"delta"}
     # Applied as the page applies them, they give the fleet; once it is all
     # there, a delta is little more than the time.
@@ -512,9 +513,11 @@ def test_the_command_line() -> None:
     assert args.iaas == ["http://127.0.0.1:8101", "http://127.0.0.1:8102"]
     assert args.listen == ("127.0.0.1", 8000)
     assert args.forest == Forest(0, 0, 2000, 2000) and args.currency == "credits"
+    assert args.silent_after == 5.0
     args = parser.parse_args(["--iaas", "http://x:1", "--forest", "-500, 0, 1500,3000",
-                              "--currency", "EUR"])
+                              "--currency", "EUR", "--silent-after", "2.5"])
     assert args.forest == Forest(-500, 0, 1500, 3000) and args.currency == "EUR"
+    assert args.silent_after == 2.5
     assert listen_address("[::1]:9000") == ("::1", 9000)
     assert page_url("::1", 9000) == "http://[::1]:9000/"
     for bad in ("8000", "host:0", "host:x"):

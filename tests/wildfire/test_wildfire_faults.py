@@ -1,8 +1,9 @@
 """The Wildfire page when things go wrong, in chromium against real clouds.
 
 Three clouds (an IaaS and 12 simulated robots each, at 50 times the clock) and
-``robocloud wildfire`` given all three IaaSs, with a 3 s wait for an IaaS and
-a page that says the server is silent after 3 s without news (``SILENT_S``).
+``robocloud wildfire`` given all three IaaSs, with a 3 s wait for an IaaS, news
+twice a second, and a page that says the server is silent after 3 s without
+news (``SILENT_S``).
 The tests run in order on one set of clouds, the last one killing a cloud:
 
 - the wildfire server frozen: the page greys what it shows and says so,
@@ -42,7 +43,8 @@ SILENT_S = 3  # the page's --silent-after: it shows the wildfire server silent s
 def system(tmp_path_factory: pytest.TempPathFactory) -> Iterator[System]:
     the_system = System(tmp_path_factory.mktemp("wildfire-faults"), clouds=3, robots=ROBOTS,
                         speedup=50.0, seed=5,
-                        wildfire_args=["--timeout", "3", "--silent-after", str(SILENT_S)])
+                        wildfire_args=["--timeout", "3", "--tick", "0.5",
+                                       "--silent-after", str(SILENT_S)])
     try:
         yield the_system.start()
     finally:

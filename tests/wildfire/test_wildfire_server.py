@@ -513,11 +513,11 @@ def test_the_command_line() -> None:
     assert args.iaas == ["http://127.0.0.1:8101", "http://127.0.0.1:8102"]
     assert args.listen == ("127.0.0.1", 8000)
     assert args.forest == Forest(0, 0, 2000, 2000) and args.currency == "credits"
-    assert args.silent_after == 5.0
+    assert args.silent_after == 5.0 and args.tick == 1.0
     args = parser.parse_args(["--iaas", "http://x:1", "--forest", "-500, 0, 1500,3000",
-                              "--currency", "EUR", "--silent-after", "2.5"])
+                              "--currency", "EUR", "--silent-after", "2.5", "--tick", "0.5"])
     assert args.forest == Forest(-500, 0, 1500, 3000) and args.currency == "EUR"
-    assert args.silent_after == 2.5
+    assert args.silent_after == 2.5 and args.tick == 0.5
     assert listen_address("[::1]:9000") == ("::1", 9000)
     assert page_url("::1", 9000) == "http://[::1]:9000/"
     for bad in ("8000", "host:0", "host:x"):

@@ -67,7 +67,8 @@ def test_a_page_receives_under_20_kb_a_second_with_1000_robots(
         start = pump_until(page, lambda: deltas[drawn][0] if len(deltas) > drawn else None,
                            "a delta after the snapshot")
         end = start + WINDOW_S
-        pump_until(page, lambda: received[-1][0] >= end, f"{WINDOW_S:.0f} s of the stream")
+        pump_until(page, lambda: bool(received) and received[-1][0] >= end,
+                   f"{WINDOW_S:.0f} s of the stream")
         window = [n for when, n, _ in received if start <= when < end]
         decoded = sum(d for when, _, d in received if start <= when < end)
         rate = sum(window) / WINDOW_S

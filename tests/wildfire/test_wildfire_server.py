@@ -22,6 +22,7 @@ from fake_iaas import KEY, FakeFederation, FakeIaas, robot
 from fastapi.testclient import TestClient
 from prometheus_client.parser import text_string_to_metric_families
 
+from robocloud.errors import InvalidInput
 from robocloud.wildfire import create_wildfire_app
 from robocloud.wildfire.app import STATIC
 from robocloud.wildfire.command import (
@@ -31,6 +32,7 @@ from robocloud.wildfire.command import (
     iaas_url,
     listen_address,
     page_url,
+    wildfire_command,
 )
 from robocloud.wildfire.config import Forest, WildfireSettings
 from robocloud.wildfire.fleet_view import capability_kinds
@@ -532,6 +534,18 @@ def test_the_command_line() -> None:
     for bad in ("", "   ", "x" * 13, "a\nb"):
         with pytest.raises(argparse.ArgumentTypeError):
             currency_label(bad)
+
+
+@pytest.mark.parametrize("flag", ["--tick", "--silent-after"])
+@pytest.mark.parametrize("value", ["0", "nan", "-1"])
+def test_the_periods_must_be_positive(flag: str, value: str) -> None:
+    import argparse
+
+    parser = argparse.ArgumentParser()
+    add_wildfire_arguments(parser)
+    args = parser.parse_args(["--iaas", "http://127.0.0.1:1", "--api-key", "k", flag, value])
+    with pytest.raises(InvalidInput, match=f"^{flag} must be positive"):
+        wildfire_command(args)
 
 
 def test_the_module_runs_as_a_command() -> None:

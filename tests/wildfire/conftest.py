@@ -23,8 +23,10 @@ expect.set_options(timeout=10_000)
 
 @pytest.fixture(scope="module")
 def system(tmp_path_factory: pytest.TempPathFactory) -> Iterator[System]:
-    # Three clouds in a federation, the page at the first: it sees every robot.
-    the_system = System(tmp_path_factory.mktemp("wildfire-system"), clouds=3, robots=20)
+    # Three clouds in a federation, the page at the first: it sees every robot. The
+    # server reads them and tells the page twice a second: a check sees a change sooner.
+    the_system = System(tmp_path_factory.mktemp("wildfire-system"), clouds=3, robots=20,
+                        wildfire_args=["--tick", "0.5"])
     try:
         yield the_system.start()
     finally:

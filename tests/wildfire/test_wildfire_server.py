@@ -21,6 +21,7 @@ from fake_iaas import KEY, FakeFederation, FakeIaas, robot
 from fastapi.testclient import TestClient
 from prometheus_client.parser import text_string_to_metric_families
 
+from robocloud.errors import InvalidInput
 from robocloud.wildfire import create_wildfire_app
 from robocloud.wildfire.app import STATIC
 from robocloud.wildfire.command import (
@@ -30,6 +31,7 @@ from robocloud.wildfire.command import (
     iaas_url,
     listen_address,
     page_url,
+    wildfire_command,
 )
 from robocloud.wildfire.config import Forest, WildfireSettings
 from robocloud.wildfire.fleet_view import capability_kinds
@@ -182,6 +184,7 @@ def test_the_live_stream_is_a_snapshot_then_deltas_gzipped(client: TestClient,
     assert first == "snapshot"
     assert snapshot["robots"]["columns"][:3] == ["id", "cloud", "status"]
     assert snapshot["config"]["currency"] == "credits"
+    assert snapshot["config"]["silent_after"] == 5.0
     assert {name for name, _ in deltas} == {"delta"}
     # Applied as the page applies them, they give the fleet; once it is all
     # there, a delta is little more than the time.
@@ -504,9 +507,11 @@ def test_the_command_line() -> None:
     assert args.iaas == ["http://127.0.0.1:8101", "http://127.0.0.1:8102"]
     assert args.listen == ("127.0.0.1", 8000)
     assert args.forest == Forest(0, 0, 2000, 2000) and args.currency == "credits"
+    assert args.silent_after == 5.0 and args.tick == 1.0
     args = parser.parse_args(["--iaas", "http://x:1", "--forest", "-500, 0, 1500,3000",
-                              "--currency", "EUR"])
+                              "--currency", "EUR", "--silent-after", "2.5", "--tick", "0.5"])
     assert args.forest == Forest(-500, 0, 1500, 3000) and args.currency == "EUR"
+    assert args.silent_after == 2.5 and args.tick == 0.5
     assert listen_address("[::1]:9000") == ("::1", 9000)
     assert page_url("::1", 9000) == "http://[::1]:9000/"
     for bad in ("8000", "host:0", "host:x"):
@@ -521,6 +526,18 @@ def test_the_command_line() -> None:
     for bad in ("", "   ", "x" * 13, "a\nb"):
         with pytest.raises(argparse.ArgumentTypeError):
             currency_label(bad)
+
+
+@pytest.mark.parametrize("flag", ["--tick", "--silent-after"])
+@pytest.mark.parametrize("value", ["0", "nan", "-1"])
+def test_the_periods_must_be_positive(flag: str, value: str) -> None:
+    import argparse
+
+    parser = argparse.ArgumentParser()
+    add_wildfire_arguments(parser)
+    args = parser.parse_args(["--iaas", "http://127.0.0.1:1", "--api-key", "k", flag, value])
+    with pytest.raises(InvalidInput, match=f"^{flag} must be positive"):
+        wildfire_command(args)
 
 
 def test_the_module_runs_as_a_command() -> None:

@@ -4,6 +4,7 @@
 
     robocloud wildfire --iaas http://127.0.0.1:8101 [--iaas URL ...] [--api-key KEY]
                        [--listen 127.0.0.1:8000] [--forest 0,0,2000,2000] [--currency credits]
+                       [--timeout 10] [--tick 1] [--silent-after 5]
     python -m robocloud.wildfire.command --iaas ...   (the same, without the CLI)
 
 ``--iaas`` may be repeated (the IaaSs of one federation, in order of
@@ -91,6 +92,21 @@ def add_wildfire_arguments(parser: argparse.ArgumentParser) -> None:
         help="how long to wait for the IaaS on the operator's behalf (default 10)",
     )
     parser.add_argument(
+        "--tick",
+        type=float,
+        default=1.0,
+        metavar="SECONDS",
+        help="how often the IaaSs are read and each page is sent what changed (default 1)",
+    )
+    parser.add_argument(
+        "--silent-after",
+        type=float,
+        default=5.0,
+        metavar="SECONDS",
+        help="a page that hears nothing from this server for this long greys what it shows "
+        "and says so (default 5)",
+    )
+    parser.add_argument(
         "--forest",
         type=forest_area,
         default=Forest.parse("0,0,2000,2000"),
@@ -145,6 +161,9 @@ def wildfire_command(args: argparse.Namespace, environ: Mapping[str, str] | None
 
     if not (math.isfinite(args.timeout) and args.timeout > 0):
         raise InvalidInput("--timeout must be positive.", "--timeout")
+    for flag, value in (("--tick", args.tick), ("--silent-after", args.silent_after)):
+        if not (math.isfinite(value) and value > 0):
+            raise InvalidInput(f"{flag} must be positive.", flag)
     env = os.environ if environ is None else environ
     api_key = args.api_key or env.get(API_KEY_ENV) or None
     host, port = args.listen
@@ -169,6 +188,8 @@ def wildfire_command(args: argparse.Namespace, environ: Mapping[str, str] | None
         currency=args.currency,
         timeout=args.timeout,
         poll_timeout=min(3.0, args.timeout),
+        tick=args.tick,
+        silent_after=args.silent_after,
     )
     app = create_wildfire_app(settings)
     config = uvicorn.Config(app, host=host, port=port, log_level=args.log_level, access_log=False)

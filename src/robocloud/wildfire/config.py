@@ -94,6 +94,8 @@ class WildfireSettings:
     tick: float = 1.0
     # A robot not heard from for this long is shown stale, greyed with its age.
     stale_after: float = 5.0
+    # A page that hears nothing from this server for this long greys what it shows.
+    silent_after: float = 5.0
     max_live_pages: int = 100
 
     def __post_init__(self) -> None:
@@ -103,7 +105,7 @@ class WildfireSettings:
             raise ValueError("an IaaS URL is given twice")
         if not self.currency.strip() or len(self.currency) > MAX_CURRENCY_CHARS:
             raise ValueError(f"the currency label needs 1 to {MAX_CURRENCY_CHARS} characters")
-        for name in ("timeout", "poll_timeout", "tick", "stale_after"):
+        for name in ("timeout", "poll_timeout", "tick", "stale_after", "silent_after"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a positive number of seconds")

@@ -417,7 +417,8 @@ class LiveModel:
     def config_json(self) -> dict[str, Any]:
         s = self.settings
         return {"forest": s.forest.as_json(), "currency": s.currency, "time_scale": self.time_scale,
-                "stale_after": s.stale_after, "tick": s.tick, "iaas": list(s.iaas),
+                "stale_after": s.stale_after, "silent_after": s.silent_after, "tick": s.tick,
+                "iaas": list(s.iaas),
                 "limits": self.limits,
                 "states": {"all": list(REQUEST_STATES),
                            "final": [s for s in REQUEST_STATES if s in FINAL_STATES]}}

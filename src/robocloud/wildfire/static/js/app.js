@@ -149,7 +149,7 @@ function onLink(link) {
     page.lostAt = live.localNow();
     newAlerts([{ id: `link-${Date.now()}`, at: live.now(), level: "danger", kind: "server",
       text: link === "down" ? "The wildfire server cannot be reached: the page shows the fleet and the requests as last heard, greyed."
-        : "The wildfire server has sent nothing for 5 s: the page shows what it last heard, greyed." }], true);
+        : `The wildfire server has sent nothing for ${fmtNumber(live.silentAfter())} s: the page shows what it last heard, greyed.` }], true);
   }
   drawHeader();
   drawBanner();

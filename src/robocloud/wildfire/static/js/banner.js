@@ -14,7 +14,7 @@
 // The most serious shows; the others are counted ("and 2 more: see Alerts").
 // Dismiss hides the one shown until its words change.
 
-import { FINAL_STATES, fmtClock, fmtDuration } from "./util.js";
+import { FINAL_STATES, fmtClock, fmtDuration, fmtNumber } from "./util.js";
 
 const NEWS_S = 15;
 const RANK = { danger: 0, warning: 1, info: 2, ok: 3 };
@@ -58,7 +58,7 @@ export class Banner {
       out.push({ key: `link:${live.link}`, level: "danger",
         text: live.link === "down"
           ? "The wildfire server cannot be reached: the page shows the fleet and the requests as last heard, greyed."
-          : "The wildfire server has sent nothing for 5 s: the page shows what it last heard, greyed." });
+          : `The wildfire server has sent nothing for ${fmtNumber(live.silentAfter())} s: the page shows what it last heard, greyed.` });
     }
     if (live.endpoints.length && !live.endpoints.some((e) => e.ok)) {
       out.push({ key: "iaas:none", level: "danger",

@@ -4,7 +4,9 @@
 
 import { FINAL_STATES } from "./util.js";
 
-const SILENT_AFTER_S = 5;   // no event for this long: the page says what it shows is old
+// No event for this long: the page says what it shows is old (the server's
+// config says how long; this until its first snapshot).
+const SILENT_AFTER_S = 5;
 
 export class Live {
   constructor({ onSnapshot, onDelta, onLink }) {
@@ -31,10 +33,13 @@ export class Live {
     this.source.addEventListener("snapshot", (e) => this.snapshot(JSON.parse(e.data)));
     this.source.addEventListener("delta", (e) => this.delta(JSON.parse(e.data)));
     this.source.addEventListener("error", () => this.setLink("down"));
+    // Looked at four times a second: the page says so within a quarter second of the limit.
     setInterval(() => {
-      if (this.link === "live" && this.localNow() - this.lastEvent > SILENT_AFTER_S) this.setLink("silent");
-    }, 1000);
+      if (this.link === "live" && this.localNow() - this.lastEvent > this.silentAfter()) this.setLink("silent");
+    }, 250);
   }
+
+  silentAfter() { return (this.config && this.config.silent_after) || SILENT_AFTER_S; }
 
   // Seconds since the epoch on this page's clock, and on the server's.
   localNow() { return Date.now() / 1000; }

@@ -16,10 +16,11 @@ from fake_iaas import KEY, FakeFederation, FakeIaas, robot
 from fake_missions import advance
 from fastapi.testclient import TestClient
 from served_iaas import ServedIaas
-from test_wildfire_server import settings, until
+from test_wildfire_server import settings
 
 from robocloud.wildfire import create_wildfire_app
 from robocloud.wildfire.config import WildfireSettings
+from waiting import wait_until
 
 MISSION = {
     "tasks": [{"id": "fire-1", "location": [300.0, 400.0], "actuating": {"grabber": 1}},
@@ -47,7 +48,7 @@ def clouds() -> tuple[FakeIaas, FakeIaas]:
 def client(clouds: tuple[FakeIaas, FakeIaas]) -> Iterator[TestClient]:
     app = create_wildfire_app(settings(*clouds), transport=FakeFederation(*clouds).transport())
     with TestClient(app) as test_client:
-        until(lambda: len(test_client.get("/api/robots").json()) == 2)
+        wait_until(lambda: len(test_client.get("/api/robots").json()) == 2)
         yield test_client
 
 
@@ -118,11 +119,11 @@ def test_a_mission_is_read_listed_and_canceled_where_it_lives(
         client: TestClient, clouds: tuple[FakeIaas, FakeIaas]) -> None:
     a, b = clouds
     a.down = True  # the send goes to cloud-b
-    until(lambda: client.get("/api/health").json()["endpoints"][0]["ok"] is False)
+    wait_until(lambda: client.get("/api/health").json()["endpoints"][0]["ok"] is False)
     sent = client.post("/api/missions", json=MISSION, headers={"Idempotency-Key": "m-2"}).json()
     assert sent["held_by"] == "cloud-b"
     a.down = False
-    until(lambda: client.get("/api/health").json()["endpoints"][0]["ok"] is True)
+    wait_until(lambda: client.get("/api/health").json()["endpoints"][0]["ok"] is True)
     read = client.get(f"/api/missions/{sent['id']}").json()
     assert read["id"] == sent["id"] and read["held_by"] == "cloud-b"
     listed = client.get("/api/missions").json()
@@ -149,7 +150,7 @@ def test_the_events_of_a_mission_are_relayed_until_it_is_final() -> None:
                                                    poll_timeout=1.0, timeout=2.0))
         with TestClient(app) as client:
             # A bound, not a claim: a loaded machine reads the first fleet late.
-            until(lambda: len(client.get("/api/robots").json()) == 2, timeout=30)
+            wait_until(lambda: len(client.get("/api/robots").json()) == 2, timeout=30)
             mission = client.post("/api/missions", json=MISSION).json()
             seen: list[dict[str, Any]] = []
             with client.stream("GET", f"/api/missions/{mission['id']}/events") as stream:
@@ -171,7 +172,7 @@ def test_the_events_of_a_mission_are_relayed_until_it_is_final() -> None:
             assert [m["state"] for m in seen] == ["underway", "underway", "completed"]
             assert seen[1]["plan"]["tasks"][0]["state"] in ("travel", "waiting", "work")
             assert seen[2]["progress"] == 1.0
-            until(lambda: served.streams == 0, timeout=30)
+            wait_until(lambda: served.streams == 0, timeout=30)
             assert client.get("/api/missions/mis-none/events").json() == {
                 "detail": "there is no mission 'mis-none'."}
     finally:

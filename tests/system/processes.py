@@ -186,14 +186,19 @@ class Cloud:
                 f"{self.name}'s robots to be free",
             )
 
-    def fault(self, robot: str, fault: str, security: Any = None) -> dict[str, Any]:
+    def fault(self, robot: str, fault: str, security: Any = None,
+              session: Any = None) -> dict[str, Any]:
         """Inject a fault into a simulated robot over the cloud's Zenoh router.
 
         ``security``: how to join a router with TLS (the cloud's own certificate).
+        ``session``: a client session already open to the router (left open), for a
+        fault that must land within tenths of a second; else one is opened for it.
         """
         from robocloud.fleet import open_client
 
-        session = open_client([self.zenoh], timeout=5.0, security=security)
+        own = session is None
+        if own:
+            session = open_client([self.zenoh], timeout=5.0, security=security)
         try:
             payload = json.dumps({"fault": fault, "robot": robot})
             for _ in range(50):
@@ -207,7 +212,8 @@ class Cloud:
                 time.sleep(0.1)  # routes not known yet
             raise AssertionError("the simulator did not answer the fault")
         finally:
-            session.close()
+            if own:
+                session.close()
 
 
 def start_clouds(

@@ -99,10 +99,15 @@ class ServedIaas:
                             if mission is None:
                                 return
                             seen = fake.version
+                            # What was sent, read under the lock: once the lock is
+                            # let go, the test may move the mission on (to final)
+                            # before this thread looks again, and that event would
+                            # never be sent.
                             data = json.dumps(mission)
+                            final = mission["state"] in FINAL
                         self.wfile.write(f"event: mission\ndata: {data}\n\n".encode())
                         self.wfile.flush()
-                        if mission["state"] in FINAL:
+                        if final:
                             return
                 except (BrokenPipeError, ConnectionResetError):
                     return

@@ -78,6 +78,7 @@ class System:
     churn: bool = False
     home_only: bool = False
     wildfire_args: list[str] = field(default_factory=list)
+    iaas_args: list[str] = field(default_factory=list)  # more flags for each `robocloud iaas`
     wildfire_port: int = field(default_factory=free_port)
     processes: dict[str, subprocess.Popen[bytes]] = field(default_factory=dict)
     logs: dict[str, IO[bytes]] = field(default_factory=dict)
@@ -131,7 +132,7 @@ class System:
                 "robocloud.cli.main", "iaas", "--cloud", cloud.name,
                 "--listen", f"127.0.0.1:{cloud.iaas_port}", "--zenoh", cloud.zenoh, *peers,
                 "--store", f"sqlite:///{self.workdir / f'{cloud.name}.db'}",
-                "--time-scale", str(self.speedup), "--log-level", "warning",
+                "--time-scale", str(self.speedup), "--log-level", "warning", *self.iaas_args,
             ], env={"ROBOCLOUD_API_KEYS": f"wildfire={API_KEY}"})
         for cloud in self.members:
             self._wait(f"{cloud.name}'s IaaS to answer /healthz", 60,

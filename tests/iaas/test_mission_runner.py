@@ -164,6 +164,30 @@ def test_a_robot_that_fails_is_replanned_around() -> None:
     asyncio.run(scenario())
 
 
+def test_a_robot_that_fails_at_work_leaves_its_task_to_be_done_again() -> None:
+    async def scenario() -> None:
+        world = World([state(0, 10.0), state(1, 40.0), state(2, 60.0), state(3, 80.0)])
+        runner = await world.begin(TWO_FIRES)
+        record = runner.record
+        f1 = record.tasks[1]
+        while f1.state != "work":
+            await world.run(runner, 1.0)
+        victim, partner = f1.robots
+        world.link.fail(victim)
+        await world.run(runner, 1.0)
+        notes = [h["note"] for h in record.history]
+        assert any(f"task f1 is planned again: {victim} left it unfinished" in n for n in notes)
+        assert not any("task f1 done" in n for n in notes), notes  # not done without its part
+        assert f1.state in ("pending", "travel", "waiting") and victim not in f1.robots
+        stops = [c.request_id for robot, c in world.sent(Cancel) if robot == partner]
+        assert f"{record.id}.1" in stops  # the partner stopped: the task begins again whole
+        await world.run(runner, 300.0)
+        assert record.state == "completed", record.history
+        assert f1.state == "done" and len(f1.robots) == 2 and victim not in f1.done_by
+
+    asyncio.run(scenario())
+
+
 def test_a_silent_robot_fails_by_the_watchdog() -> None:
     async def scenario() -> None:
         world = World([state(0, 10.0), state(1, 40.0), state(2, 60.0)], offline_after=5.0)

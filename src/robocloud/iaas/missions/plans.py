@@ -74,6 +74,9 @@ class RobotRun:
     state: str = "assigned"
     sent: int = 0  # legs sent so far (the current one is ``legs[sent - 1]``)
     sent_wall: float | None = None  # when the current leg's assign was sent
+    # (seq, sent_at) of the robot's newest state when that assign was sent: a
+    # state no newer is from before it (the task ids of a re-planned task repeat).
+    sent_after: tuple[int, float] = (-1, float("-inf"))
     heard_wall: float = 0.0  # its latest report
     joined_wall: float = 0.0  # when the mission took it
     position: tuple[float, float] = (0.0, 0.0)

@@ -19,7 +19,9 @@ robot silent for ``offline_after``, or past its expected arrival (while it
 travels) or finish (while it works) plus the tolerance, or that reports its
 task failed or itself offline, has failed. Its current task is stopped for it
 and it is released; the tasks not yet started are then planned again from
-where the robots are now (the failed one left out); tasks underway stay.
+where the robots are now (the failed one left out), and so is a task whose
+work it left unfinished (whole: its other members are stopped and may be
+chosen again). Tasks underway without it stay.
 History says why. Robots are held for the mission as a whole (routed to the
 mission's id in ``RobotRoutes``, lent for it by their homes) and each is
 released as its last task ends, or at the end of the mission.
@@ -36,6 +38,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import math
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from typing import Any
@@ -328,6 +331,8 @@ class MissionRunner:
         wire = run.wire(record.id)
         member.sent += 1
         member.sent_wall = ports.wall()
+        heard = ports.state_of(member.id)
+        member.sent_after = (heard.seq, heard.sent_at) if heard is not None else (-1, -math.inf)
         member.state = "travel"
         ports.route(record.id, member.id, wire)
         command = Assign(
@@ -350,6 +355,10 @@ class MissionRunner:
         member.position = (state.position[0], state.position[1])
         leg = member.current
         if leg is None:
+            return
+        if state.seq <= member.sent_after[0] and state.sent_at <= member.sent_after[1]:
+            # Sent before its current assign (a smaller seq sent later is a restart):
+            # "work" on the task id of a task since planned again is not this leg's.
             return
         run = self.record.tasks[leg.task]
         wire = run.wire(self.record.id)
@@ -504,18 +513,14 @@ class MissionRunner:
             record.tasks[leg.task].wire(record.id) if leg is not None else record.id,
         )
         await self.ports.release(record.id, member.id, member.cloud, f"it failed: {why}")
-        underway = [
-            run for run in record.tasks.values()
-            if run.state == "work" and member.id in run.robots and member.id not in run.done_by
-        ]
-        for run in underway:  # tasks underway stay, with the members left
-            await self._task_maybe_done(run)
-            if is_final(record.state):
-                return
-            if all(record.robots[r].state == "failed" for r in run.robots):
-                run.state = "failed"
-                await self._end("failed", f"task {run.id} lost every robot while underway")
-                return
+        for run in record.tasks.values():
+            if run.state == "work" and member.id in run.robots and member.id not in run.done_by:
+                # Its part of the work is not done, so the task is not: it is planned
+                # again, whole, with the tasks not started (its other members are
+                # stopped by the re-plan, and may be chosen again).
+                run.state, run.progress, run.started_wall = "pending", 0.0, None
+                run.done_by.clear()
+                record.note(now, f"task {run.id} is planned again: {member.id} left it unfinished")
         await self._replan(f"robot {member.id} failed")
 
     async def _replan(self, why: str) -> None:

@@ -32,5 +32,24 @@ def join(
     return robot
 
 
+def leave(cloud: Cloud, robots: list[ReadmeRobot], timeout: float = 10) -> None:
+    """Close ``robots`` and wait until the IaaS lists each offline (past ``--offline-after``).
+
+    For a cloud shared by a file's tests: a robot just closed still looks idle
+    until then, and the next test's request could choose it.
+    """
+    for robot in robots:
+        robot.close()
+    gone = {robot.id for robot in robots}
+    with cloud.client() as client:
+        wait_until(
+            lambda: all(
+                r["status"] == "offline" for r in client.get("/v1/robots").json() if r["id"] in gone
+            ),
+            timeout,
+            f"{', '.join(sorted(gone))} to be listed offline",
+        )
+
+
 def details(request: dict[str, Any]) -> list[str]:
     return [h["detail"] or "" for h in request["history"]]

@@ -7,6 +7,7 @@ to a task's location and works there, and keeps its last finished task in
 answers late), ``silent()`` / ``back()`` (no states and no answers, as a
 crashed robot; it comes back still holding its task), ``never_arrives`` (it
 drives in circles: its progress creeps towards one half and never gets there).
+Closed, it publishes a last state, ``offline``, as a robot that shuts down.
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ class ReadmeRobot:
         speed: float = 10.0,
         ack_delay: float = 0.0,
         never_arrives: bool = False,
+        keep_done: float = 3.0,
     ) -> None:
         self.cloud, self.id = cloud, robot_id
         self.position = position
@@ -38,6 +40,7 @@ class ReadmeRobot:
         self.speed = speed
         self.ack_delay = ack_delay
         self.never_arrives = never_arrives
+        self.keep_done = keep_done  # seconds a finished task stays in the state
         self.task: dict[str, Any] | None = None  # request_id, phase, progress, capabilities
         self.last_task: dict[str, Any] | None = None
         self.job: dict[str, Any] | None = None  # target, travel and work seconds, started
@@ -46,11 +49,18 @@ class ReadmeRobot:
         self.seq = 0
         self.done_at = 0.0
         self.is_silent = False
+        self.shutting_down = False  # its last state says offline: it cannot work any more
         self._lock = threading.RLock()
         config = zenoh.Config()
         config.insert_json5("mode", '"client"')
         config.insert_json5("connect/endpoints", json.dumps([endpoint]))
         config.insert_json5("scouting/multicast/enabled", "false")
+        # Its router restarted (the IaaS killed and started again): back within half a
+        # second, where Zenoh's default waits 1 s, then up to 4 s, between attempts.
+        config.insert_json5(
+            "connect/retry",
+            json.dumps({"period_init_ms": 100, "period_max_ms": 500, "period_increase_factor": 2}),
+        )
         self.session = zenoh.open(config)
         prefix = f"robocloud/{cloud}/robots/{robot_id}"
         self.publisher = self.session.declare_publisher(f"{prefix}/state")
@@ -69,8 +79,11 @@ class ReadmeRobot:
         self.publish()
 
     def close(self) -> None:
+        """Shut down; a robot still talking says so first: its last state is ``offline``."""
         self._stop.set()
         self._thread.join(5)
+        self.shutting_down = True
+        self.publish()
         self.queryable.undeclare()
         self.publisher.undeclare()
         self.session.close()
@@ -156,6 +169,7 @@ class ReadmeRobot:
         with self._lock:
             self.seq += 1
             busy = self.task is not None and self.task["phase"] in ("travel", "work")
+            status = "offline" if self.shutting_down else "busy" if busy else "idle"
             return {
                 "id": self.id,
                 "cloud": self.cloud,
@@ -163,7 +177,7 @@ class ReadmeRobot:
                 "position": list(self.position),
                 "speed": self.speed,
                 "battery": 90.0,
-                "status": "busy" if busy else "idle",
+                "status": status,
                 "travel_cost_per_m": 0.01,
                 "capabilities": self.capabilities,
                 "task": dict(self.task) if self.task else None,
@@ -181,13 +195,14 @@ class ReadmeRobot:
         self.publisher.put(json.dumps(state))
 
     def _run(self) -> None:
+        self.publish()  # heard at once, not half a second after it joined
         while not self._stop.wait(0.5):
             self._advance()
             self.publish()
             with self._lock:
-                # A finished task stays in the state for 3 s, then only in last_task.
+                # A finished task stays in the state for a few seconds, then only in last_task.
                 finished = self.task is not None and self.task["phase"] == "done"
-                if finished and time.monotonic() - self.done_at > 3.0:
+                if finished and time.monotonic() - self.done_at > self.keep_done:
                     self.task = None
 
     def commands_for(self, request_id: str, kind: str) -> list[float]:

@@ -1,6 +1,6 @@
 """``make run`` (``robocloud.cli.demo``) survives one cloud's failure and brings it back.
 
-The demo small and fast (3 clouds, 60 robots, robots 50 times the clock) and
+The demo small and fast (3 clouds, 60 robots, robots 250 times the clock) and
 without a terminal, as CI runs it: its IaaS of cloud-b is killed, the demo
 says so and goes on, the other clouds drop cloud-b and serve a request with
 their own robots, ``kill -USR1`` restarts cloud-b, Ctrl-C stops it all.
@@ -80,7 +80,7 @@ def demo(tmp_path: Path) -> Iterator[Demo]:
         process = subprocess.Popen(
             [
                 sys.executable, "-m", "robocloud.cli.demo",
-                "--clouds", "3", "--robots", "60", "--speedup", "50",
+                "--clouds", "3", "--robots", "60", "--speedup", "250",
                 "--var", str(tmp_path / "var"),
                 "--http-port", str(http), "--zenoh-port", str(zenoh),
                 "--wildfire-port", str(wildfire),

@@ -16,7 +16,7 @@ from typing import Any
 
 import pytest
 from processes import Cloud, follow, wait_until
-from readme_fleet import details, join
+from readme_fleet import details, join, leave
 from readme_robot import ReadmeRobot
 
 pytestmark = pytest.mark.slow
@@ -47,6 +47,9 @@ def cloud(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Cloud]:
             # The watchdog made short: a robot may run 50% past its expected
             # time, at least 1 s; 3 s without progress is a stall.
             "--overrun-min", "1", "--stall-after", "3", "--set-aside-for", "60",
+            # A robot or two to choose from: the selection runs in the IaaS's
+            # thread, without the worker processes a start would fork first.
+            "--selection-workers", "0",
         ],
     )  # fmt: skip
     try:
@@ -59,8 +62,7 @@ def cloud(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Cloud]:
 def robots(cloud: Cloud) -> Iterator[list[ReadmeRobot]]:
     made: list[ReadmeRobot] = []
     yield made
-    for robot in made:
-        robot.close()
+    leave(cloud, made)  # not chosen by the next test
 
 
 def at(request: dict[str, Any], state: str) -> float:
@@ -74,8 +76,10 @@ def at(request: dict[str, Any], state: str) -> float:
 def test_a_robot_that_never_arrives_is_stopped_and_replaced_within_its_tolerance(
     cloud: Cloud, robots: list[ReadmeRobot]
 ) -> None:
-    lost = join(cloud, robots, "a-lost", 18.0, never_arrives=True)  # the closest: chosen
-    join(cloud, robots, "a-spare", 0.0)
+    lost = join(cloud, robots, "a-lost", 18.0, never_arrives=True)  # the quickest: chosen
+    # 0.2 s to drive and 2.5 s of work: slower than a-lost's 2.2 s, quicker than 4 s at 10 m/s.
+    later = {"grabber": {"kind": "actuating", "time": 2.5, "cost": 1.0}}
+    join(cloud, robots, "a-spare", 0.0, capabilities=later, speed=100.0)
     with cloud.client() as client:
         rid = client.post("/v1/requests", json=TASK).json()["id"]
         done = follow(client, rid, lambda r: r["state"] in FINAL, 30, "the end")
@@ -164,10 +168,12 @@ def test_a_cancel_while_the_ack_is_on_its_way_ends_with_a_stop_the_robot_receive
 def test_a_robot_that_never_acknowledges_is_set_aside_and_the_reason_says_so(
     cloud: Cloud, robots: list[ReadmeRobot]
 ) -> None:
-    join(cloud, robots, "a-deaf", 18.0, ack_delay=2.5)  # past the 1 s ack deadline
-    # Slower at the work than a-deaf wherever it is: a-deaf is the first choice each time.
-    slower = {"grabber": {"kind": "actuating", "time": 4.0, "cost": 1.0}}
-    join(cloud, robots, "a-good", 0.0, capabilities=slower)
+    quick = {"grabber": {"kind": "actuating", "time": 0.5, "cost": 1.0}}
+    deaf = join(cloud, robots, "a-deaf", 18.0, quick, ack_delay=2.5)  # past the 1 s ack deadline
+    # Slower at the work (1 s) than a-deaf (0.7 s) wherever it is: a-deaf is the first
+    # choice each time; 0.2 s to drive at 100 m/s.
+    slower = {"grabber": {"kind": "actuating", "time": 1.0, "cost": 1.0}}
+    join(cloud, robots, "a-good", 0.0, capabilities=slower, speed=100.0)
     with cloud.client() as client:
         for attempt in (1, 2):
             rid = client.post("/v1/requests", json=TASK).json()["id"]
@@ -183,6 +189,18 @@ def test_a_robot_that_never_acknowledges_is_set_aside_and_the_reason_says_so(
                 == "idle",
                 10,
                 "a-good to be idle again",
+            )
+            # a-deaf answers 2.5 s after the assign, late, and then hears the stop: idle
+            # again, and so the first choice of the next request.
+            wait_until(
+                lambda rid=rid: any(
+                    s["task"] and s["task"]["request_id"] == rid for s in deaf.states
+                )
+                and deaf.task is None
+                and {r["id"]: r for r in client.get("/v1/robots").json()}["a-deaf"]["status"]
+                == "idle",
+                10,
+                "a-deaf to be idle again",
             )
         listed = {r["id"]: r for r in client.get("/v1/robots").json()}
         aside = listed["a-deaf"]["set_aside"]

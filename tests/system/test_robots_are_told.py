@@ -9,12 +9,11 @@ from __future__ import annotations
 
 import time
 from collections.abc import Iterator
-from pathlib import Path
 from typing import Any
 
 import pytest
 from processes import Cloud, follow, wait_until
-from readme_fleet import details, join
+from readme_fleet import details, join, leave
 from readme_robot import ReadmeRobot
 
 pytestmark = pytest.mark.slow
@@ -29,16 +28,24 @@ TASK: dict[str, Any] = {
 }
 
 
-@pytest.fixture
-def cloud(tmp_path: Path) -> Iterator[Cloud]:
+@pytest.fixture(scope="module")
+def cloud(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Cloud]:
+    """One IaaS for the file: each test has robots of its own (ids not used elsewhere);
+    a test that kills the IaaS starts it again."""
+    tmp_path = tmp_path_factory.mktemp("robots-are-told")
     cloud = Cloud(
         "cloud-a",
         tmp_path,
         f"sqlite:///{tmp_path / 'cloud-a.db'}",
         robots=0,
         speedup=1.0,
-        iaas_args=["--ack-timeout", "1", "--offline-after", "1.5", "--log-level", "info"],
-    )
+        iaas_args=[
+            "--ack-timeout", "1", "--offline-after", "1.5", "--log-level", "info",
+            # A robot or two to choose from: the selection runs in the IaaS's
+            # thread, without the worker processes a start would fork first.
+            "--selection-workers", "0",
+        ],
+    )  # fmt: skip
     try:
         yield cloud.start()
     finally:
@@ -49,15 +56,16 @@ def cloud(tmp_path: Path) -> Iterator[Cloud]:
 def robots(cloud: Cloud) -> Iterator[list[ReadmeRobot]]:
     made: list[ReadmeRobot] = []
     yield made
-    for robot in made:
-        robot.close()
+    leave(cloud, made)  # not chosen by the next test
 
 
 def test_a_late_acknowledgement_is_canceled_and_one_robot_does_the_job(
     cloud: Cloud, robots: list[ReadmeRobot]
 ) -> None:
     late = join(cloud, robots, "a-late", 18.0, ack_delay=2.5)  # the best choice: closest
-    good = join(cloud, robots, "a-good", 0.0)
+    # 0.2 s to drive at 100 m/s and 2.5 s of work: slower than a-late's 2.2 s, so second.
+    slower = {"grabber": {"kind": "actuating", "time": 2.5, "cost": 1.0}}
+    good = join(cloud, robots, "a-good", 0.0, capabilities=slower, speed=100.0)
     with cloud.client() as client:
         rid = client.post("/v1/requests", json=TASK).json()["id"]
         done = follow(client, rid, lambda r: r["state"] in ("completed", "failed"), 30, "the end")
@@ -114,13 +122,16 @@ def test_a_robot_back_from_a_crash_is_told_to_stop_within_a_second(
 def test_a_robot_that_finishes_while_the_iaas_is_down_completes_the_request(
     cloud: Cloud, robots: list[ReadmeRobot]
 ) -> None:
-    robot = join(cloud, robots, "a-1", 0.0)  # 20 m at 10 m/s, then 2 s of work
+    # 20 m at 10 m/s, then 0.5 s of work: done 2.5 s after the assign, well after the kill;
+    # the finished task stays in its state for 1 s.
+    quick = {"grabber": {"kind": "actuating", "time": 0.5, "cost": 1.0}}
+    robot = join(cloud, robots, "a-1", 0.0, capabilities=quick, keep_done=1.0)
     with cloud.client() as client:
         rid = client.post("/v1/requests", json=TASK).json()["id"]
         follow(client, rid, lambda r: r["state"] == "underway", 10, "underway")
     cloud.kill_iaas()
     wait_until(lambda: robot.last_task and robot.last_task["request_id"] == rid, 10, "done")
-    # Past the 3 s a finished task stays in the state: only last_task tells now.
+    # Past the second a finished task stays in the state: only last_task tells now.
     wait_until(lambda: robot.task is None, 6, "the finished task to leave the state")
     cloud.start_iaas()
     with cloud.client() as client:

@@ -30,6 +30,10 @@ pytestmark = pytest.mark.slow
 ROOT = Path(__file__).parents[2]
 VEHICLE = ROOT / "tests" / "gateways" / "vda5050_vehicle.py"
 ACCEPT_WITHIN = 2.0  # the gateway's --accept-within here
+# The AGVs drive 10 m/s (trips of 1.5 to 9 s here); the simulated robots run 1,000
+# times faster than the clock (a kicker's trip across the forest, a second or two).
+AGV_SPEED = 10.0
+SPEEDUP = 1000.0
 CAPABILITIES = {
     "capabilities": {"lift": {"kind": "actuating", "time": 1.0, "cost": 2.0, "action": "pick"}},
     "travel_cost_per_m": 0.01,
@@ -49,7 +53,7 @@ class Fleet:
         self.vehicles[serial] = subprocess.Popen(
             [sys.executable, str(VEHICLE), "--interface", self.interface, "--serial", serial,
              "--host", self.broker[0], "--port", str(self.broker[1]),
-             "--x", str(x), "--speed", "5", "--action-time", "0.5",
+             "--x", str(x), "--speed", str(AGV_SPEED), "--action-time", "0.5",
              "--log", str(self.log_of(serial)), *options],
             stdout=subprocess.DEVNULL, stderr=open(self.workdir / f"{serial}.err", "ab"),  # noqa: SIM115
         )  # fmt: skip
@@ -88,7 +92,7 @@ class Fleet:
 def fleet(tmp_path_factory: pytest.TempPathFactory, mosquitto: tuple[str, int]) -> Iterator[Fleet]:
     workdir = tmp_path_factory.mktemp("vda5050")
     cloud = Cloud("cloud-a", workdir, f"sqlite:///{workdir / 'cloud-a.db'}", robots=12,
-                  speedup=100.0)  # fmt: skip
+                  speedup=SPEEDUP)  # fmt: skip
     fleet = Fleet(cloud, f"uagv-test-{secrets.token_hex(4)}", workdir, mosquitto)
     try:
         cloud.start()
@@ -218,7 +222,9 @@ def cancel_orders(fleet: Fleet, serial: str) -> list[dict[str, Any]]:
 def test_a_gateway_killed_mid_order_and_restarted_leaves_one_agv_on_the_pick(fleet: Fleet) -> None:
     """Issue 24: after kill -9 and a restart the old AGV kept its order and a second did the
     same pick. Now the AGV found on an order the IaaS does not assign again gets cancelOrder."""
-    task = {"location": [90.0, 0.0], "actuating": {"lift": 1}, "max_robots": 1,
+    # 120 m: the AGV chosen (at 60 m, where the last test left it) drives 6 s, long
+    # after the gateway was killed and while it starts again.
+    task = {"location": [120.0, 0.0], "actuating": {"lift": 1}, "max_robots": 1,
             "max_cost": 100_000.0, "max_time": 100_000.0, "priority": "time"}  # fmt: skip
     assert fleet.gateway is not None
     with fleet.cloud.client() as client:

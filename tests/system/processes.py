@@ -15,6 +15,7 @@ from typing import Any
 
 import httpx
 
+import waiting
 from loopback_ports import free_port
 
 API_KEY = "test-key"
@@ -27,18 +28,10 @@ NO_SHEDDING = ["--busy-after", "3600", "--max-waiting", "1000000"]
 FINAL_STATES = ("completed", "failed", "rejected", "canceled")
 
 
-def wait_until(predicate: Callable[[], Any], timeout: float, what: str, every: float = 0.05) -> Any:
-    deadline = time.monotonic() + timeout
-    while True:
-        try:
-            value = predicate()
-        except httpx.TransportError:
-            value = None
-        if value:
-            return value
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
-        time.sleep(every)
+def wait_until(predicate: Callable[[], Any], timeout: float, what: str,
+               every: float = 0.05) -> Any:
+    """``waiting.wait_until``, a server not answering yet (a transport error) a false answer."""
+    return waiting.wait_until(predicate, timeout, what, every, ignore=(httpx.TransportError,))
 
 
 @dataclass

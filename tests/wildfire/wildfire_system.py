@@ -20,6 +20,7 @@ from typing import IO, Any
 
 import httpx
 
+import waiting
 from loopback_ports import free_port
 
 API_KEY = "wildfire-test-key"
@@ -31,17 +32,8 @@ CHROMIUM_ARGS = [
 
 def wait_until(predicate: Callable[[], Any], timeout: float, what: str,
                every: float = 0.1) -> Any:
-    deadline = time.monotonic() + timeout
-    while True:
-        try:
-            value = predicate()
-        except httpx.TransportError:
-            value = None
-        if value:
-            return value
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
-        time.sleep(every)
+    """``waiting.wait_until``, a server not answering yet (a transport error) a false answer."""
+    return waiting.wait_until(predicate, timeout, what, every, ignore=(httpx.TransportError,))
 
 
 @dataclass

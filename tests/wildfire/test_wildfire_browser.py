@@ -602,10 +602,13 @@ def test_the_tables_sort_filter_and_page(page: Any, system: System,
         for i in range(60):
             answer = client.post("/v1/requests", json={**task, "label": f"bulk {i:02d}"})
             assert answer.status_code == 202
+        newest = answer.json()["id"]
         total = len(client.get("/v1/requests", params={"limit": 200}).json()["items"])
     wait_for_fleet(page)
     rows = page.locator("#requests-table tbody tr")
     expect(rows).to_have_count(25)
+    # Page 1 as it is once every request is known (a page loaded meanwhile is reloaded).
+    expect(rows.first).to_have_attribute("data-id", newest)
     expect(page.locator("#requests-page")).to_have_text("page 1")
     # Paging goes beyond the IaaS's 50: every request is reachable.
     seen = set(page.eval_on_selector_all("#requests-table tbody tr",

@@ -27,6 +27,7 @@ const page = {
   selectedRev: null,
   requestsQuery: { state: "", cursors: [""], index: 0, next: null },
   reloadTimer: null,
+  requestsTicket: 0,       // the latest load of the requests table (older answers are dropped)
   unread: 0,
   bannerKey: null,
   cardRobot: null,
@@ -364,8 +365,13 @@ function reloadRequests(delay = 0) {
 }
 
 async function loadRequests() {
+  clearTimeout(page.reloadTimer);
   const q = page.requestsQuery;
+  // Only the answer to the latest load is shown: a reload of page 1 answered after a
+  // click on "older" would otherwise fill page 2 with page 1's rows.
+  const ticket = ++page.requestsTicket;
   const answer = await api.requests({ state: q.state, limit: REQUESTS_PER_PAGE, before: q.cursors[q.index] });
+  if (ticket !== page.requestsTicket) return;
   if (!answer.ok) {
     $("requests-error").textContent = sentence(answer.detail);
     return;

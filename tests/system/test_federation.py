@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import concurrent.futures
 import math
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -29,13 +29,43 @@ NAMES = ("cloud-a", "cloud-b", "cloud-c")
 SPEEDUP = 200.0
 
 
+# For a cloud that is sent no request, so selects nothing: selections in a thread
+# if any, rather than a forkserver and two worker processes to start with it.
+NO_WORKERS = ["--selection-workers", "0"]
+
+
+def shared_flags(name: str) -> list[str]:
+    """The shared clouds' shorter periods, so that the tests see sooner what they wait for.
+
+    Each cloud reconciles its loans every second (a quarter of a 4 s origin
+    deadline; every 5 s by default): cloud-c, back, frees its robots sooner.
+    cloud-a takes a robot silent for 2.5 s (5 by default) for offline: it
+    notices sooner that cloud-c's robots fell silent. The tests send their
+    requests to cloud-a only.
+    """
+    flags = ["--origin-deadline", "4"]
+    return [*flags, "--offline-after", "2.5"] if name == "cloud-a" else [*flags, *NO_WORKERS]
+
+
 def start_federation(
-    tmp_path: Path, robots: int, speedup: float, chain: bool = False, shed: bool = True
+    tmp_path: Path,
+    robots: int,
+    speedup: float,
+    chain: bool = False,
+    shed: bool = True,
+    flags: Callable[[str], list[str]] = lambda name: [],
 ) -> list[Cloud]:
-    """Three clouds; ``shed=False`` turns their load shedding off (a burst test's clouds)."""
-    iaas_args = (lambda name: []) if shed else (lambda name: NO_SHEDDING)
+    """Three clouds; ``shed=False`` turns their load shedding off (a burst test's clouds);
+    ``flags(name)``: more flags for that cloud's IaaS."""
+    shedding = [] if shed else NO_SHEDDING
     return start_clouds(
-        tmp_path, NAMES, robots, speedup, chain=chain, iaas_args=iaas_args, together=True
+        tmp_path,
+        NAMES,
+        robots,
+        speedup,
+        chain=chain,
+        iaas_args=lambda name: [*shedding, *flags(name)],
+        together=True,
     )
 
 
@@ -50,7 +80,9 @@ class Shared:
 @pytest.fixture(scope="module")
 def three_clouds(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Shared]:
     """The three clouds of the file's tests that need no special set-up (one start)."""
-    clouds = start_federation(tmp_path_factory.mktemp("federation"), robots=20, speedup=SPEEDUP)
+    clouds = start_federation(
+        tmp_path_factory.mktemp("federation"), robots=20, speedup=SPEEDUP, flags=shared_flags
+    )
     try:
         yield Shared(clouds)
     finally:
@@ -190,7 +222,13 @@ def test_a_request_is_served_by_all_three_clouds_then_one_is_canceled(
 def test_two_clouds_racing_never_book_a_robot_twice(tmp_path: Path) -> None:
     # 100 requests at once: load shedding would refuse some (503), which is not
     # what this test is about.
-    clouds = start_federation(tmp_path, robots=20, speedup=2.0, shed=False)
+    clouds = start_federation(
+        tmp_path,
+        robots=20,
+        speedup=2.0,
+        shed=False,
+        flags=lambda name: NO_WORKERS if name == "cloud-c" else [],  # sent to a and b only
+    )
     try:
         task = {
             "location": [1000.0, 1000.0],
@@ -248,6 +286,7 @@ def test_a_chain_serves_a_request_at_a_with_robots_of_c(tmp_path: Path) -> None:
             robots=n,
             speedup=SPEEDUP,
             seed=3,
+            iaas_args=[] if name == "cloud-a" else NO_WORKERS,  # the request goes to cloud-a
         )
         for name, n in zip(NAMES, (0, 0, 20), strict=True)
     ]

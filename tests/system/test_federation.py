@@ -304,7 +304,9 @@ def test_a_chain_serves_a_request_at_a_with_robots_of_c(tmp_path: Path) -> None:
             rid = client.post(
                 "/v1/requests",
                 json={
-                    "location": [1000.0, 1000.0],
+                    # Where c-0008 waits (the grabber that has the battery): its 127 s of
+                    # work, under a second at SPEEDUP; it drove 1,154 s to (1000, 1000).
+                    "location": [1102.8, 212.1],
                     "actuating": {"grabber": 1},
                     "max_robots": 2,
                     "max_cost": 10_000.0,

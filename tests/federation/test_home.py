@@ -325,6 +325,45 @@ def test_an_origin_away_past_the_deadline_loses_its_loans_and_learns_it_back(
     assert "cloud-b ended the loan of b-1 to request" in lines
 
 
+def test_a_home_notes_an_origin_back_that_asked_for_its_ended_loans_first(
+    fed: tuple[MemoryNetwork, dict[str, Cloud]],
+    time: FakeTime,
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """The origin, back, may ask its lenders before the home probes it: the home
+    still notes it back, with the loans it ended meanwhile."""
+    network, c = fed
+    a, b = c["cloud-a"], c["cloud-b"]
+    record, _ = a.store.create_request("app", {"x": 1})
+    rid = record.id
+    a.view.reserve(rid, [("b-1", "cloud-b")])
+    assert a.view.assign("b-1", "cloud-b", go(rid)).ok
+    assert a.view.confirm(rid, [("b-1", "cloud-b")]) == []
+    a.origin.coalitions[rid] = ["b-1"]
+    b.link.step(5)
+    b.link.cancel("b-1", rid)  # idle, still lent
+    time.advance(11)
+    network.cut("cloud-a")
+    with caplog.at_level(logging.INFO, logger="robocloud.federation.reconcile"):
+        b.reconciler.reconcile()  # cloud-a does not answer: the clock starts
+        time.advance(61)
+        b.link.step(0)
+        b.reconciler.reconcile()
+        assert b.store.loans() == []
+        network.mend("cloud-a")
+        a.reconciler.reconcile()  # cloud-a asks first, and is told
+        assert b.store.untold_loans("cloud-a") == []
+        b.reconciler.reconcile()
+        b.reconciler.reconcile()  # noted once
+    assert a.origin.ended == [
+        (rid, "b-1", "cloud-b", "cloud-a was unreachable for 60 s while robot b-1 was idle or done")
+    ]
+    backs = [r.getMessage() for r in caplog.records if "cloud-a is back" in r.getMessage()]
+    assert backs == [
+        "cloud-a is back; 1 of its loans ended while it was away (b-1); it asked, and was told"
+    ]
+
+
 def test_a_cancel_stops_a_robot_still_working_after_its_loan_ended(
     fed: tuple[MemoryNetwork, dict[str, Cloud]], time: FakeTime
 ) -> None:

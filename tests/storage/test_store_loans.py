@@ -177,6 +177,21 @@ def test_loans_are_found_by_robot_origin_and_request(store: RequestStore) -> Non
     assert all(loan.history == () for loan in store.loans())  # lists come without history
 
 
+def test_an_origins_live_loans_are_counted(backend: Backend, clock: FakeClock) -> None:
+    store = backend.open(clock)
+    store.lend("cloud-a", "req-a1", ["b-1", "b-2"], 30)
+    store.lend("cloud-a", "req-a2", ["b-3"], 60)
+    store.lend("cloud-c", "req-c1", ["b-4"], 30)
+    assert (store.count_loans("cloud-a"), store.count_loans("cloud-c")) == (3, 1)
+    assert store.count_loans("cloud-z") == 0
+    store.end_loans("cloud-a", "req-a1", ["b-1"], "released by cloud-a")
+    assert store.count_loans("cloud-a") == 2
+    store.confirm_loans("cloud-a", "req-a1", ["b-2"])
+    clock.advance(45)  # req-a1's firm loan holds on, cloud-c's lease has lapsed
+    assert (store.count_loans("cloud-a"), store.count_loans("cloud-c")) == (2, 0)
+    assert store.count_loans("cloud-a") == len(store.loans("cloud-a"))
+
+
 def test_loans_refuse_bad_input(store: RequestStore) -> None:
     with pytest.raises(InvalidInput, match="origin"):
         store.lend("", "req-a1", ["b-1"], 30)

@@ -65,6 +65,11 @@ class Cloud:
         return httpx.Client(base_url=self.url, headers=HEADERS, timeout=10.0)
 
     def start_iaas(self) -> None:
+        self.launch_iaas()
+        self.wait_for_iaas()
+
+    def launch_iaas(self) -> None:
+        """Start the IaaS process without waiting for it (``wait_for_iaas``)."""
         log = open(self.workdir / f"{self.name}-iaas.log", "ab")  # noqa: SIM115
         env = {**os.environ, "ROBOCLOUD_API_KEYS": f"tests={API_KEY}"}
         self.iaas = subprocess.Popen(
@@ -93,6 +98,8 @@ class Cloud:
             cwd=self.workdir,
             env=env,
         )
+
+    def wait_for_iaas(self) -> None:
         # A bound, not a timing claim: on two cores shared with other work an
         # IaaS took up to 23 s to answer its first /healthz (it imports and
         # forks its selection workers first).
@@ -219,12 +226,16 @@ def start_clouds(
     iaas_args: Callable[[str], list[str]] = lambda name: [],
     sim_args: Callable[[str], list[str]] = lambda name: [],
     robots_at: Callable[[str], int] | None = None,
+    together: bool = False,
 ) -> list[Cloud]:
     """Start one cloud per name, joined, and wait until the first sees them all.
 
     Full mesh, or a chain: a <- b <- c (c reaches a only through b). Each
     cloud's extra flags come from ``iaas_args(name)`` and ``sim_args(name)``;
     ``robots_at(name)``, when given, is its number of robots instead of ``robots``.
+    ``together``: the IaaSs are started at once, then waited for (a router
+    joins a peer that listens later by trying again), instead of one cloud
+    after the other.
     """
     clouds: list[Cloud] = []
     for i, name in enumerate(names):
@@ -241,8 +252,11 @@ def start_clouds(
         cloud.peers = [clouds[-1].zenoh] if chain and clouds else [c.zenoh for c in clouds]
         clouds.append(cloud)
     try:
-        for cloud in clouds:
-            cloud.start()
+        if together:
+            start_together(clouds)
+        else:
+            for cloud in clouds:
+                cloud.start()
         with clouds[0].client() as client:
             wait_until(
                 lambda: [c["cloud"] for c in client.get("/v1/clouds").json()] == sorted(names),
@@ -254,6 +268,18 @@ def start_clouds(
             cloud.stop()
         raise
     return clouds
+
+
+def start_together(clouds: Sequence[Cloud]) -> None:
+    """Start every cloud's IaaS at once, each simulator once its IaaS answers (its
+    connect timeout runs from its start), then wait until each IaaS sees its robots."""
+    for cloud in clouds:
+        cloud.launch_iaas()
+    for cloud in clouds:
+        cloud.wait_for_iaas()
+        cloud.start_sim()
+    for cloud in clouds:
+        cloud.wait_for_robots()
 
 
 def follow(

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import concurrent.futures
 import math
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -23,44 +23,95 @@ from processes import (
 from robocloud.sim.roster import cloud_robots
 
 NAMES = ("cloud-a", "cloud-b", "cloud-c")
+# Robot seconds per wall second of the shared clouds and the chain: the
+# slowest of every grabber sent to (1000, 1000) is done in about 6 s (1,245
+# robot seconds: a-0011 drives 1,129 s, works 116 s), where 50 took 25 s.
+SPEEDUP = 200.0
+
+
+# For a cloud that is sent no request, so selects nothing: selections in a thread
+# if any, rather than a forkserver and two worker processes to start with it.
+NO_WORKERS = ["--selection-workers", "0"]
+
+
+def shared_flags(name: str) -> list[str]:
+    """The shared clouds' shorter periods, so that the tests see sooner what they wait for.
+
+    Each cloud reconciles its loans every second (a quarter of a 4 s origin
+    deadline; every 5 s by default): cloud-c, back, frees its robots sooner.
+    cloud-a takes a robot silent for 2.5 s (5 by default) for offline: it
+    notices sooner that cloud-c's robots fell silent. The tests send their
+    requests to cloud-a only.
+    """
+    flags = ["--origin-deadline", "4"]
+    return [*flags, "--offline-after", "2.5"] if name == "cloud-a" else [*flags, *NO_WORKERS]
 
 
 def start_federation(
-    tmp_path: Path, robots: int, speedup: float, chain: bool = False, shed: bool = True
+    tmp_path: Path,
+    robots: int,
+    speedup: float,
+    chain: bool = False,
+    shed: bool = True,
+    flags: Callable[[str], list[str]] = lambda name: [],
 ) -> list[Cloud]:
-    """Three clouds; ``shed=False`` turns their load shedding off (a burst test's clouds)."""
-    iaas_args = (lambda name: []) if shed else (lambda name: NO_SHEDDING)
-    return start_clouds(tmp_path, NAMES, robots, speedup, chain=chain, iaas_args=iaas_args)
+    """Three clouds; ``shed=False`` turns their load shedding off (a burst test's clouds);
+    ``flags(name)``: more flags for that cloud's IaaS."""
+    shedding = [] if shed else NO_SHEDDING
+    return start_clouds(
+        tmp_path,
+        NAMES,
+        robots,
+        speedup,
+        chain=chain,
+        iaas_args=lambda name: [*shedding, *flags(name)],
+        together=True,
+    )
+
+
+class Shared:
+    """The module's three clouds, and whether the last test that had them left them as new."""
+
+    def __init__(self, clouds: list[Cloud]) -> None:
+        self.clouds = clouds
+        self.fresh = True  # as started: every robot at its place, no request
 
 
 @pytest.fixture(scope="module")
-def three_clouds(tmp_path_factory: pytest.TempPathFactory) -> Iterator[list[Cloud]]:
-    """The three clouds of the file's tests that need no special set-up (one start: 13-20 s)."""
-    clouds = start_federation(tmp_path_factory.mktemp("federation"), robots=20, speedup=50.0)
+def three_clouds(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Shared]:
+    """The three clouds of the file's tests that need no special set-up (one start)."""
+    clouds = start_federation(
+        tmp_path_factory.mktemp("federation"), robots=20, speedup=SPEEDUP, flags=shared_flags
+    )
     try:
-        yield clouds
+        yield Shared(clouds)
     finally:
         for cloud in clouds:
             cloud.stop()
 
 
-def as_new(clouds: list[Cloud]) -> None:
+def as_new(clouds: list[Cloud], robots: bool = True) -> None:
     """Bring the shared clouds back to a fresh start: no request open, fresh robots, all three up.
 
     A test may stop a cloud or kill its IaaS: what is not running starts again
     (same ports, same store). Its requests still open are canceled; each
     simulator starts again, so that every robot is back at its place with its
-    battery (the seeds are the same).
+    battery (the seeds are the same). ``robots=False``: only the simulators
+    that stopped start again (a test that needs the three clouds listed with
+    their robots, whatever their places and batteries).
     """
     for cloud in clouds:
         cloud.settle()
     for cloud in clouds:
         if cloud.sim is not None and cloud.sim.poll() is None:
+            if not robots:
+                continue
             cloud.sim.terminate()
             cloud.sim.wait(10)
         cloud.start_sim()
-    for seed, cloud in enumerate(clouds):  # start_clouds gives the i-th cloud seed i
-        at_their_places(cloud, seed)
+    if robots:
+        for seed, cloud in enumerate(clouds):  # start_clouds gives the i-th cloud seed i
+            at_their_places(cloud, seed)
     with clouds[0].client() as client:
         wait_until(
             lambda: [(c["cloud"], c["robots"]) for c in client.get("/v1/clouds").json()]
@@ -90,12 +141,25 @@ def at_their_places(cloud: Cloud, seed: int) -> None:
 
 
 @pytest.fixture
-def federation(three_clouds: list[Cloud]) -> Iterator[list[Cloud]]:
-    """The shared three clouds, as new after the test that had them."""
-    try:
-        yield three_clouds
-    finally:
-        as_new(three_clouds)
+def federation(three_clouds: Shared) -> Iterator[list[Cloud]]:
+    """The shared three clouds, as new: made so before the test when the last one changed them.
+
+    Before rather than after: the module's last test leaves them to be stopped.
+    """
+    if not three_clouds.fresh:
+        as_new(three_clouds.clouds)
+    three_clouds.fresh = False
+    yield three_clouds.clouds
+
+
+@pytest.fixture
+def federation_listed(three_clouds: Shared) -> Iterator[list[Cloud]]:
+    """The shared three clouds running, each listed with its 20 robots, no request open;
+    its robots wherever the last test left them."""
+    if not three_clouds.fresh:
+        as_new(three_clouds.clouds, robots=False)
+    three_clouds.fresh = False
+    yield three_clouds.clouds
 
 
 def every_grabber_task(client: httpx.Client) -> tuple[dict[str, Any], set[str]]:
@@ -107,19 +171,6 @@ def every_grabber_task(client: httpx.Client) -> tuple[dict[str, Any], set[str]]:
 
 def coalition_clouds(request: dict[str, Any]) -> set[str]:
     return {a["cloud"] for a in request["coalition"] or []}
-
-
-def test_clouds_are_listed_and_a_stopped_one_disappears(federation: list[Cloud]) -> None:
-    with federation[0].client() as client:
-        clouds = client.get("/v1/clouds").json()
-        assert [c["cloud"] for c in clouds] == list(NAMES)
-        assert all(c["robots"] == 20 for c in clouds)
-        federation[2].stop()
-        wait_until(
-            lambda: [c["cloud"] for c in client.get("/v1/clouds").json()] == ["cloud-a", "cloud-b"],
-            10,
-            "cloud-c to leave the list",
-        )
 
 
 def test_a_request_is_served_by_all_three_clouds_then_one_is_canceled(
@@ -146,6 +197,9 @@ def test_a_request_is_served_by_all_three_clouds_then_one_is_canceled(
         assert done["state"] == "completed", done
 
         task, _ = every_grabber_task(client)
+        # Far from (1000, 1000), where the first left its robots: each drives 1,273 m (636
+        # robot seconds or more, 3 s at SPEEDUP) and is still on its way at the cancel.
+        task["location"] = [1900.0, 100.0]
         rid = client.post("/v1/requests", json=task).json()["id"]
         underway = follow(
             client, rid, lambda r: r["state"] in ("underway", "failed"), 20, "underway"
@@ -168,7 +222,13 @@ def test_a_request_is_served_by_all_three_clouds_then_one_is_canceled(
 def test_two_clouds_racing_never_book_a_robot_twice(tmp_path: Path) -> None:
     # 100 requests at once: load shedding would refuse some (503), which is not
     # what this test is about.
-    clouds = start_federation(tmp_path, robots=20, speedup=2.0, shed=False)
+    clouds = start_federation(
+        tmp_path,
+        robots=20,
+        speedup=2.0,
+        shed=False,
+        flags=lambda name: NO_WORKERS if name == "cloud-c" else [],  # sent to a and b only
+    )
     try:
         task = {
             "location": [1000.0, 1000.0],
@@ -220,7 +280,13 @@ def test_two_clouds_racing_never_book_a_robot_twice(tmp_path: Path) -> None:
 def test_a_chain_serves_a_request_at_a_with_robots_of_c(tmp_path: Path) -> None:
     clouds = [
         Cloud(
-            name, tmp_path, f"sqlite:///{tmp_path / f'{name}.db'}", robots=n, speedup=50.0, seed=3
+            name,
+            tmp_path,
+            f"sqlite:///{tmp_path / f'{name}.db'}",
+            robots=n,
+            speedup=SPEEDUP,
+            seed=3,
+            iaas_args=[] if name == "cloud-a" else NO_WORKERS,  # the request goes to cloud-a
         )
         for name, n in zip(NAMES, (0, 0, 20), strict=True)
     ]
@@ -228,7 +294,9 @@ def test_a_chain_serves_a_request_at_a_with_robots_of_c(tmp_path: Path) -> None:
     clouds[2].peers = [clouds[1].zenoh]  # c connects to b; a and c never meet
     try:
         for cloud in clouds:
-            cloud.start_iaas()
+            cloud.launch_iaas()
+        for cloud in clouds:
+            cloud.wait_for_iaas()
         clouds[2].start_sim()
         clouds[2].wait_for_robots()
         with clouds[0].client() as client:
@@ -236,7 +304,9 @@ def test_a_chain_serves_a_request_at_a_with_robots_of_c(tmp_path: Path) -> None:
             rid = client.post(
                 "/v1/requests",
                 json={
-                    "location": [1000.0, 1000.0],
+                    # Where c-0008 waits (the grabber that has the battery): its 127 s of
+                    # work, under a second at SPEEDUP; it drove 1,154 s to (1000, 1000).
+                    "location": [1102.8, 212.1],
                     "actuating": {"grabber": 1},
                     "max_robots": 2,
                     "max_cost": 10_000.0,
@@ -262,7 +332,9 @@ def test_a_cloud_killed_mid_task_then_restarted(federation: list[Cloud]) -> None
     a, _, c = federation
     with a.client() as client:
         task, _ = every_grabber_task(client)
-        task["location"] = [1900.0, 100.0]  # far: the robots are still driving at the kill
+        # Far: the robots are still driving at the kill (cloud-c's nearest grabber drives
+        # 1,110 robot seconds, 5 s at SPEEDUP).
+        task["location"] = [1900.0, 100.0]
         rid = client.post("/v1/requests", json=task).json()["id"]
         underway = follow(
             client, rid, lambda r: r["state"] in ("underway", "failed"), 20, "underway"
@@ -293,3 +365,16 @@ def test_a_cloud_killed_mid_task_then_restarted(federation: list[Cloud]) -> None
             )
 
         wait_until(released, 30, "cloud-c to reconcile and free its robots")
+
+
+def test_clouds_are_listed_and_a_stopped_one_disappears(federation_listed: list[Cloud]) -> None:
+    with federation_listed[0].client() as client:
+        clouds = client.get("/v1/clouds").json()
+        assert [c["cloud"] for c in clouds] == list(NAMES)
+        assert all(c["robots"] == 20 for c in clouds)
+        federation_listed[2].stop()
+        wait_until(
+            lambda: [c["cloud"] for c in client.get("/v1/clouds").json()] == ["cloud-a", "cloud-b"],
+            10,
+            "cloud-c to leave the list",
+        )

@@ -41,8 +41,16 @@ TRUST = {
     "cloud-b": ["cloud-a", "cloud-c"],
     "cloud-c": ["cloud-a"],
 }
-DEADLINE = 3.0  # cloud-b's --origin-deadline, short for the test
+# Every cloud's --origin-deadline, short for the test: cloud-b ends a loan of cloud-a's
+# 1 s after cloud-a stops answering, and each cloud reconciles its loans every 0.25 s
+# (a quarter of it): cloud-a, back, learns sooner what it lost.
+DEADLINE = 1.0
+OFFLINE_AFTER = 2.5  # cloud-b's --offline-after: a robot silent this long (5 s by default)
 ROBOTS = 20  # cloud-b's; some start busy or charging (the simulator's roster)
+# Robot seconds per wall second (the simulator's --speedup, the IaaSs' --time-scale):
+# every grabber of cloud-b sent to (1000, 1000) is done in 4-5 s (857 robot seconds;
+# 17 s at 50), and a far kicker is on its way for 4 s or more.
+SPEEDUP = 200.0
 
 
 def tls_flags(certs: Path, name: str) -> list[str]:
@@ -64,16 +72,22 @@ def federation(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[list[
 
     def iaas_args(name: str) -> list[str]:
         flags = [*tls_flags(certs, name), *(a for t in TRUST[name] for a in ("--trust", t))]
-        return [*flags, "--origin-deadline", str(DEADLINE)] if name == "cloud-b" else flags
+        flags += ["--origin-deadline", str(DEADLINE)]
+        if name == "cloud-a":
+            return flags
+        # Sent no request, so selecting nothing: no selection worker processes to start.
+        flags += ["--selection-workers", "0"]
+        return [*flags, "--offline-after", str(OFFLINE_AFTER)] if name == "cloud-b" else flags
 
     clouds = start_clouds(
         tmp_path,
         NAMES,
         robots=0,
-        speedup=50.0,
+        speedup=SPEEDUP,
         iaas_args=iaas_args,
         sim_args=lambda name: tls_flags(certs, f"{name}-robots"),
         robots_at=lambda name: ROBOTS if name == "cloud-b" else 0,
+        together=True,
     )
     try:
         yield clouds, certs
@@ -107,7 +121,8 @@ def log_of(cloud: Cloud) -> str:
 
 
 def far_kicker_task(location: list[float]) -> dict[str, Any]:
-    """One kicker, far from cloud-b's idle ones: the robot is on its way for 20 s or more."""
+    """One kicker, far from cloud-b's idle ones: on its way for 500 robot seconds or more
+    (b-0005 drives 578 s to (1950, 1950), 1,009 s to (100, 100))."""
     return {
         "location": location,
         "actuating": {"kicker": 1},
@@ -165,7 +180,7 @@ def test_a_simulator_without_a_certificate_is_kept_out(
             "--connect",
             b.zenoh,
             "--connect-timeout",
-            "3",
+            "1",
             "--tls-ca",
             str(certs / "ca.pem"),
         ],
@@ -327,7 +342,7 @@ def test_an_origin_that_disappears_loses_its_loans_and_learns_it_back(
         ended = f"ended the loan of {robot} to cloud-a's request {rid}: cloud-a was unreachable"
         started = time.monotonic()
         wait_until(lambda: ended in log_of(b), 30, "cloud-b to end the loan of the silent robot")
-        # Silent for 5 s (offline), then the 3 s deadline, give or take a reconciliation.
+        # Silent for 2.5 s (offline), then the 1 s deadline, give or take a reconciliation.
         assert time.monotonic() - started < 15
         with b.client() as client:
             held = {r["id"]: r["request"] for r in client.get("/v1/robots").json()}

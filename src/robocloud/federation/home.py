@@ -452,7 +452,7 @@ class Home:
             )
             for loan in self.store.untold_loans(origin)[:MAX_ITEMS]
         ]
-        return LoanReply(cloud=self.cloud, held=len(self.store.loans(origin)), ended=ended)
+        return LoanReply(cloud=self.cloud, held=self.store.count_loans(origin), ended=ended)
 
     def stop(self, robot: str, request_id: str) -> None:
         """Tell a robot to stop working for ``request_id``: for a mission, the task it is on."""
@@ -482,15 +482,17 @@ class Home:
         asked = min(reservation.lease_seconds or self.lease_max, self.lease_max)
         lease = asked
         if refusal is None:
-            held = self.store.loans(origin)
-            mine = {loan.robot for loan in held if loan.request_id == request_id}
+            # Counted, and this request's read, by the store's indexes: reading every loan
+            # of the origin at each reservation made a thousand loans quadratic.
+            held = self.store.count_loans(origin)
+            mine = {loan.robot for loan in self.store.loans(origin, request_id)}
             # Robots another holds are left to the store, which answers them taken.
             new = [r for r in robots if r not in mine and self._holder(r) is None]
             fleet = self.link.robots()
             refusal = (
                 unfit(new, {r.id: r for r in fleet}, LEND_MIN_BATTERY)
                 or set_aside(new, self.set_aside, self.cloud)
-                or over_share(origin, len(held), len(new), len(fleet), self.lend_share, self.cloud)
+                or over_share(origin, held, len(new), len(fleet), self.lend_share, self.cloud)
             )
             if refusal is None:
                 ours = [r for r in robots if r in mine or r in new]

@@ -79,6 +79,8 @@ class LoanReconciler:
         self._monotonic = monotonic
         self._started = monotonic()
         self._away_since: dict[str, float] = {}  # origin -> when it first did not answer
+        # origin -> (request, robot) of the loans ended here while it was away
+        self._ended_away: dict[str, set[tuple[str, str]]] = defaultdict(set)
         self._worked_at: dict[str, float] = {}  # robot -> when last seen working for its loan
 
     def _forget(self, ended: Iterable[Loan]) -> None:
@@ -149,6 +151,7 @@ class LoanReconciler:
             )
             self._forget(ended)
             if ended:
+                self._ended_away[origin].add((loan.request_id, loan.robot))
                 log.warning(
                     "ended the loan of %s to %s's request %s: %s",
                     loan.robot,
@@ -158,12 +161,17 @@ class LoanReconciler:
                 )
 
     def _probe(self, overlay: Overlay, origin: str) -> None:
-        """An origin away with no loan left here: is it back, to be told of its ended loans?"""
-        untold = self.store.untold_loans(origin)
-        if not untold:
+        """An origin away with no loan left here: is it back, to be told of its ended loans?
+
+        Also when it was told already: back, it may have asked for them (its own
+        reconciliation) before this one probes; it is back all the same.
+        """
+        untold = {loan.request_id for loan in self.store.untold_loans(origin)}
+        asked = untold or {request_id for request_id, _ in self._ended_away.get(origin, ())}
+        if not asked:
             self._away_since.pop(origin, None)
             return
-        request_ids = sorted({loan.request_id for loan in untold})[:MAX_ITEMS]
+        request_ids = sorted(asked)[:MAX_ITEMS]
         try:
             overlay.status(origin, StatusQuery(home=self.cloud, request_ids=request_ids))
         except RoboCloudError:
@@ -174,12 +182,15 @@ class LoanReconciler:
         if self._away_since.pop(origin, None) is None:
             return
         untold = self.store.untold_loans(origin)
-        if untold:
+        robots = {loan.robot for loan in untold}
+        robots |= {robot for _, robot in self._ended_away.pop(origin, ())}
+        if robots:
             log.warning(
-                "%s is back; %d of its loans ended while it was away (%s); it is told when it asks",
+                "%s is back; %d of its loans ended while it was away (%s); %s",
                 origin,
-                len(untold),
-                ", ".join(sorted({loan.robot for loan in untold})),
+                len(robots),
+                ", ".join(sorted(robots)),
+                "it is told when it asks" if untold else "it asked, and was told",
             )
         else:
             log.info("%s is back", origin)

@@ -401,6 +401,16 @@ class MemoryRequestStore:
         found.sort(key=lambda loan: (loan.created_at, loan.robot, loan.id))
         return found
 
+    def count_loans(self, origin: str) -> int:
+        with self._lock:
+            now = self._clock()
+            return sum(
+                self._loans[loan_id].live(now)
+                for (o, _), robots in self._lent.items()
+                if o == origin
+                for loan_id in robots.values()
+            )
+
     def untold_loans(self, origin: str) -> builtins.list[Loan]:
         with self._lock:
             found = [self._loans[i] for i in self._untold.get(origin, ())]

@@ -185,6 +185,9 @@ class SqlRequestStore:
     ) -> builtins.list[Loan]:
         return self._loans.loans(origin, request_id)
 
+    def count_loans(self, origin: str) -> int:
+        return self._loans.count_loans(origin)
+
     def untold_loans(self, origin: str) -> builtins.list[Loan]:
         return self._loans.untold_loans(origin)
 

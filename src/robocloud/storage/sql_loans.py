@@ -16,7 +16,7 @@ from collections.abc import Sequence
 from datetime import datetime
 from typing import Any
 
-from sqlalchemy import Connection, Row, insert, select, update
+from sqlalchemy import Connection, Row, func, insert, select, update
 
 from robocloud.storage import rules
 from robocloud.storage.engine import Database
@@ -209,6 +209,21 @@ class SqlLoans:
                 query.order_by(loans.c.created_at, loans.c.robot_id, loans.c.id)
             ).all()
             return [_loan(row) for row in rows]
+
+        return self._db.run(work, write=False)
+
+    def count_loans(self, origin: str) -> int:
+        def work(conn: Connection) -> int:
+            count: int = conn.execute(
+                select(func.count())
+                .select_from(loans)
+                .where(
+                    loans.c.origin == origin,
+                    loans.c.state.in_(ACTIVE_LOANS),
+                    unexpired(loans.c.expires_at, self._clock()),
+                )
+            ).scalar_one()
+            return count
 
         return self._db.run(work, write=False)
 

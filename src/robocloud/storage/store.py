@@ -221,6 +221,11 @@ class RequestStore(Protocol):
         """
         ...
 
+    def count_loans(self, origin: str) -> int:
+        """How many live loans ``origin`` holds: ``len(loans(origin))`` without reading them
+        (a home counts them at each reservation)."""
+        ...
+
     def untold_loans(self, origin: str) -> builtins.list[Loan]:
         """The loans of ``origin`` the home ended on its own and has not told it about."""
         ...

@@ -35,7 +35,7 @@ test: $(STAMP)
 	sh tests/wildfire/ensure_chromium.sh
 	$(BIN)/python -m pytest -q -n 3 --dist loadfile --no-loadscope-reorder
 
-# schemathesis for 40 s instead of make test's 15 (tests/system/test_api_fuzz.py).
+# schemathesis for 40 s instead of make test's 8 (tests/system/test_api_fuzz.py).
 fuzz: $(STAMP)
 	ROBOCLOUD_FUZZ_SECONDS=40 $(BIN)/python -m pytest -q -s tests/system/test_api_fuzz.py
 

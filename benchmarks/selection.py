@@ -23,6 +23,9 @@ timing. Then:
   the reference point r = (max_time, max_cost, sum_need + 1) in raw units;
   pymoo's ``HV``. The exact front is the true front over all candidates, so
   its hypervolume is the most any method can reach.
+
+Why one long file: every method is measured on the same generated
+scenarios in the same process, so the ratios compare like with like.
 """
 
 from __future__ import annotations

@@ -4,6 +4,9 @@ Mutual TLS with certificates of one CA, Zenoh user-password credentials, and
 the access control that lets each trusted cloud send commands for a cloud's
 robots only on the keys that name it (recognised by its certificate), so the
 sender a home reads from the key is the cloud that sent it.
+
+Why one long file: its tests share the certificate authority and the
+routers it makes; a table of who may do what reads best in one place.
 """
 
 from __future__ import annotations

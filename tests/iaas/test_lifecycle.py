@@ -5,6 +5,9 @@ receive, the state it is in afterwards and the effects it asks for, in order.
 The hypothesis test below plays random sequences of events over several
 requests that compete for the same robots, with a model of the store, and
 checks the invariants the life cycle promises.
+
+Why one long file: the table and the properties test one pure function
+(``decide``) and share its situations and events.
 """
 
 from __future__ import annotations

@@ -5,6 +5,9 @@ times the clock) and ``robocloud wildfire`` given all three IaaSs, every one a
 subprocess on loopback (``conftest.py``), shared by the module. Each test saves a
 screenshot under ``test-output/wildfire/`` and fails on any console error it
 did not expect, or on any request for something off the wildfire server.
+
+Why one long file: its 17 tests share one started system (three clouds,
+the wildfire server, chromium), which takes most of its time.
 """
 
 from __future__ import annotations

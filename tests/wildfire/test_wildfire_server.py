@@ -1,7 +1,10 @@
 """The wildfire server over fake IaaSs (httpx.MockTransport): fast, no network.
 
 The background loops run for real, every 50 ms; a test waits for what they
-read (``until``) rather than sleeping.
+read (``wait_until``) rather than sleeping.
+
+Why one long file: every test drives the same server over the same fake
+IaaSs; the browser's view is in test_wildfire_browser.py.
 """
 
 from __future__ import annotations

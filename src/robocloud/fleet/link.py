@@ -8,6 +8,10 @@ Zenoh calls back on its own threads: ``on_state`` listeners run there, and
 ``assign`` and ``cancel`` block until the robot answers or the timeout
 passes, so an asyncio caller uses ``asyncio.to_thread`` for them and hands
 states to its loop with ``loop.call_soon_threadsafe``.
+
+Why one file of about 500 lines: the two links (the interface and Zenoh's)
+share the ordering, forgetting and bounding rules of one robot's states,
+written once here; the columns and the refusals are in their own files.
 """
 
 from __future__ import annotations

@@ -197,9 +197,9 @@ def _home_with_loans(size: int) -> Iterator[Any]:
             # Every robot lent to one origin, as fast as the loop goes: the share
             # and rate bounds (issue 25) are lifted, and its robots (which never
             # report) never turn offline: what is measured is the store.
+            link = MemoryRobotLink("cloud-b", robots, offline_after=1e9)
             home = Home(
-                "cloud-b", store, MemoryRobotLink("cloud-b", robots, offline_after=1e9), lease_max=3600,
-                lend_share=1.0, reserve_rate=1e9,
+                "cloud-b", store, link, lease_max=3600, lend_share=1.0, reserve_rate=1e9
             )
             for i, robot in enumerate(robots):
                 _lend(home, f"req-{i:05d}", robot.id)

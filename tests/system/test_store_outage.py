@@ -1,8 +1,9 @@
 """PostgreSQL unreachable for 7 s under load: 503s meanwhile, then no request lost or stuck.
 
-7 s: a request's store write that fails as the outage begins is tried again
-after pauses of 0.2, 0.4, 0.8, 1.6 and 3.2 s (``robocloud.iaas.actor``), the
-last one past the outage's end.
+A request's store write that fails as the outage begins is tried again after
+pauses that double from 0.2 s up to 5 s (``robocloud.iaas.actor``): 0.2, 0.6,
+1.4, 3.0 and 6.2 s into the outage, then 11.2 s, 4.2 s after its end. The
+test follows every accepted request to its end, so that late try is awaited.
 """
 
 from __future__ import annotations

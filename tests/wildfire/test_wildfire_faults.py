@@ -29,7 +29,7 @@ from typing import Any
 
 import pytest
 from playwright.sync_api import expect
-from wildfire_browser import Console, open_page
+from wildfire_browser import Console
 from wildfire_page import fill_limits, send, type_fire, wait_for_fleet, want
 from wildfire_system import System
 
@@ -49,12 +49,6 @@ def system(tmp_path_factory: pytest.TempPathFactory) -> Iterator[System]:
         yield the_system.start()
     finally:
         the_system.stop()
-
-
-@pytest.fixture
-def page(browser: Any, system: System, console: Console, screenshots: Path,
-         request: pytest.FixtureRequest) -> Iterator[Any]:
-    yield from open_page(browser, system, console, screenshots, request.node.name)
 
 
 # Every text the send's status line shows, recorded in the page as it changes.

@@ -94,12 +94,6 @@ def system(tmp_path_factory: pytest.TempPathFactory) -> Iterator[FakeSystem]:
         the_system.stop()
 
 
-@pytest.fixture
-def page(browser: Any, system: FakeSystem, console: Console, screenshots: Path,
-         request: pytest.FixtureRequest) -> Iterator[Any]:
-    yield from open_page(browser, system, console, screenshots, request.node.name)  # type: ignore[arg-type]
-
-
 def add_fire(page: Any, x: float, y: float, caps: dict[str, int], work: str = "") -> None:
     place_fire(page, x, y)
     want(page, caps)

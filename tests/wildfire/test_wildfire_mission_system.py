@@ -19,7 +19,6 @@ from typing import Any
 import httpx
 import pytest
 from playwright.sync_api import expect
-from wildfire_browser import Console, open_page
 from wildfire_page import place_fire, wait_for_fleet, want
 from wildfire_system import System
 
@@ -38,12 +37,6 @@ def system(tmp_path_factory: pytest.TempPathFactory) -> Iterator[System]:
         yield the_system.start()
     finally:
         the_system.stop()
-
-
-@pytest.fixture
-def page(browser: Any, system: System, console: Console, screenshots: Path,
-         request: pytest.FixtureRequest) -> Iterator[Any]:
-    yield from open_page(browser, system, console, screenshots, request.node.name)
 
 
 def near_idle(robots: list[dict[str, Any]], capability: str, count: int) -> list[tuple[int, int]]:

@@ -388,7 +388,10 @@ async function loadRequests() {
     ? `${fmtNumber(from + 1)}–${fmtNumber(from + items.length)}${q.state ? ` ${q.state}` : ""}, newest first` : "";
   $("requests-empty").hidden = items.length > 0 || q.index > 0;
   $("requests-empty").textContent = q.state ? `No ${q.state} requests.` : "No requests yet: place the fire and send one.";
-  if (!page.selectedId && !page.autoSelected && items.length) {
+  // The newest request is shown once, unless the operator is already in the id field
+  // (its text would be replaced under the cursor, or the id typed onto it).
+  if (!page.selectedId && !page.autoSelected && items.length
+      && document.activeElement !== $("lookup-id")) {
     page.autoSelected = true;
     select(items[0].id);
   }

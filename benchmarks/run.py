@@ -26,6 +26,7 @@ from benchmarks import (
     missions,
     nxt,
     ros2,
+    router_trace,
     select_command,
     selection,
     service,
@@ -56,6 +57,7 @@ SECTIONS: list[Section] = [
     Section("ros2", ros2.run),
     Section("missions", missions.run),
     Section("memory", memory.run),
+    Section("router-trace", router_trace.run),
 ]
 
 

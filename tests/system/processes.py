@@ -145,6 +145,21 @@ class Cloud:
                 f"{count} robots of {self.name} to report",
             )
 
+    def router_refusals(self) -> dict[tuple[str, str], float]:
+        """robocloud_router_refusals of the IaaS's /metrics: (party, message) -> count."""
+        with self.client() as client:
+            text = client.get("/metrics").text
+        counts: dict[tuple[str, str], float] = {}
+        for line in text.splitlines():
+            if line.startswith("robocloud_router_refusals_total{"):
+                labels, value = line.removeprefix("robocloud_router_refusals_total").rsplit(" ", 1)
+                found = dict(
+                    pair.split("=", 1) for pair in labels.strip("{}").split(",") if "=" in pair
+                )
+                key = (found["party"].strip('"'), found["message"].strip('"'))
+                counts[key] = float(value)
+        return counts
+
     def start(self) -> Cloud:
         self.start_iaas()
         self.start_sim()

@@ -9,9 +9,9 @@ knows), and declares a-0002's command queryable. The router lets its own
 state through and nothing else: the IaaS keeps a-0002's real state, never
 hears of a-0003, and a command for a-0002 reaches a-0002 alone.
 
-What the IaaS can observe of the refusals: nothing. Zenoh's router drops
-them before the IaaS's session, and logs its access decisions only at trace
-level (docs/security.md, section 6); the IaaS's log says nothing of them.
+Each refusal leaves a line in the IaaS's log and a count in its metrics
+(``robocloud_router_refusals``): the IaaS reads its router's access control
+trace (robocloud.federation.security.router_refusals).
 """
 
 from __future__ import annotations
@@ -164,5 +164,22 @@ def test_a_robot_certificate_speaks_for_its_robot_only(cloud_a: tuple[Cloud, Pat
     finally:
         for session in (real, attacker, tool):
             session.close()  # type: ignore[no-untyped-call]
+    attacker_name = robot_name(CLOUD, "a-0001")
+    refused = {
+        (attacker_name, "put"): 3.0,  # a-0002's state, the batch, a-0003's state
+        (attacker_name, "declare_queryable"): 1.0,  # a-0002's command key
+        (attacker_name, "liveliness_token"): 1.0,  # a simulator's token
+    }
+    wait_until(lambda: cloud.router_refusals() == refused, 10, "the refusals to be counted")
     log = (cloud.workdir / f"{CLOUD}-iaas.log").read_text()
-    assert "a-0003" not in log and "999" not in log
+    assert "999" not in log  # the forged state was never read
+    said = [line for line in log.splitlines() if "router refused" in line]
+    for key in (
+        keys.state_key(CLOUD, "a-0002"),
+        keys.batch_key(CLOUD, "gw-1"),
+        keys.state_key(CLOUD, "a-0003"),
+        keys.cmd_key(CLOUD, "a-0002"),
+        keys.sim_token(CLOUD, 1),
+    ):
+        assert any(repr(key) in line and attacker_name in line for line in said), key
+    assert all("a-0003" not in line for line in log.splitlines() if line not in said)

@@ -323,7 +323,24 @@ def test_a_robot_certificate_fabricates_no_cloud(federation: tuple[list[Cloud], 
         for each in kept:
             each.undeclare()
         robots.close()  # type: ignore[no-untyped-call]
-    assert "cloud-zzz" not in log_of(a)
+    # Each refusal is a line of cloud-a's log and a count of its metrics.
+    wait_until(
+        lambda: {
+            message: n for (party, message), n in a.router_refusals().items()
+            if party == "cloud-b-robots"
+        } == {"liveliness_token": 2.0, "declare_queryable": 2.0},
+        10,
+        "cloud-a to count the refusals",
+    )
+    said = [line for line in log_of(a).splitlines() if "router refused" in line]
+    for refused in (
+        f"liveliness_token on '{keys.cloud_token('cloud-zzz', zid)}'",
+        f"liveliness_token on '{keys.cloud_token('cloud-b', zid)}'",
+        "declare_queryable on 'robocloud/cloud-zzz/*'",
+        "declare_queryable on 'robocloud/cloud-b/status'",
+    ):
+        assert any(refused in line and "cloud-b-robots" in line for line in said), refused
+    assert all("cloud-zzz" not in line for line in log_of(a).splitlines() if line not in said)
 
 
 def test_an_origin_that_disappears_loses_its_loans_and_learns_it_back(

@@ -25,6 +25,7 @@ import contextlib
 import gc
 import logging
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -145,8 +146,7 @@ def add_iaas_arguments(parser: argparse.ArgumentParser) -> None:
         type=int,
         default=1000,
         metavar="N",
-        help="new requests are refused (503) while this many wait for their robots "
-        "(default 1000)",
+        help="new requests are refused (503) while this many wait for their robots (default 1000)",
     )
     parser.add_argument(
         "--time-scale",
@@ -248,10 +248,21 @@ def iaas_command(args: argparse.Namespace) -> int:
             f"serving http://{args.listen[0]}:{settings.port}/v1 (docs at /docs), "
             f"robots on {', '.join(settings.zenoh_listen)}, store {masked(settings.store_url)}"
         )
-        app = create_app(settings, store=store)
+        app = create_app(settings, store=store, router_refusals=watch_router(settings))
         tune_runtime()
         serve(app, listener, args.log_level, settings.header_timeout, ready)
     return 0
+
+
+def watch_router(settings: Settings) -> Callable[[], dict[tuple[str, str], int]] | None:
+    """With access control on the router, read what it refuses (log lines and a metric)."""
+    security = settings.overlay_security
+    if security is None or not security.identifies_peers:
+        return None
+    from robocloud.federation.security.router_refusals import watch
+
+    entries = security.for_cloud(settings.cloud, settings.trusted).config_entries("router")
+    return watch(settings.cloud, entries["access_control"]).counts
 
 
 def tune_runtime() -> None:
@@ -359,4 +370,3 @@ def iaas_settings(args: argparse.Namespace) -> Settings:
         overlay_security=overlay_security,
     )
     return settings
-

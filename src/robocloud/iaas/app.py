@@ -56,7 +56,7 @@ from robocloud.iaas.config import Settings
 from robocloud.iaas.docs_ui import install_docs
 from robocloud.iaas.elsewhere import Elsewhere
 from robocloud.iaas.feed import Updates
-from robocloud.iaas.metrics import IaasMetrics
+from robocloud.iaas.metrics import IaasMetrics, RouterRefusals
 from robocloud.iaas.missions.api import mission_routes
 from robocloud.iaas.models import (
     ErrorBody,
@@ -129,11 +129,15 @@ def create_app(
     store: RequestStore | None = None,
     link: RobotLink | None = None,
     selector: Selector | None = None,
+    router_refusals: RouterRefusals | None = None,
 ) -> FastAPI:
     """The IaaS's HTTP API over the parts ``build_cloud`` makes (in the lifespan).
 
     ``store``, ``link`` and ``selector`` replace the real ones (for tests).
+    ``router_refusals``: where the metrics read what the router refused, when
+    the command reads its trace (``router_refusals.watch``).
     """
+
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         async with build_cloud(settings, metrics, store, link, selector) as cloud:
@@ -157,6 +161,8 @@ def create_app(
     )
     app.state.settings = settings
     metrics = app.state.metrics = IaasMetrics()
+    if router_refusals is not None:
+        metrics.observe_router(router_refusals)
     _install_error_handlers(app)
     # JSON answers of 1 KiB and more, gzipped for clients that accept it (a page
     # of 1,000 robots: 284 kB -> 23 kB). Starlette passes event streams
@@ -176,9 +182,7 @@ def create_app(
     # Every route, for Allow and the OpenAPI's answers (those of included
     # routers are not in app.routes as routes of their own).
     app.state.routes = [
-        r
-        for r in (*routes.routes, *missions.routes, *app.router.routes)
-        if isinstance(r, APIRoute)
+        r for r in (*routes.routes, *missions.routes, *app.router.routes) if isinstance(r, APIRoute)
     ]
     return app
 
@@ -552,9 +556,7 @@ def _routes() -> Any:
         overlay: ZenohOverlay | None = request.app.state.overlay
         if scope == "federation" and overlay is not None and cloud != service.settings.cloud:
             fleets = await asyncio.to_thread(overlay.fleets)
-            remote += remote_rows(
-                (f.robots for f in fleets), wanted, service.settings.cloud, owns
-            )
+            remote += remote_rows((f.robots for f in fleets), wanted, service.settings.cloud, owns)
         page = build_page(
             local,
             remote,
@@ -666,8 +668,10 @@ def _install_error_handlers(app: FastAPI) -> None:
         if error.status_code == 400:
             # FastAPI's answer to a body it cannot decode (not UTF-8, say).
             return JSONResponse(
-                {"detail": "the body could not be read as JSON (not UTF-8, or nested too "
-                 "deep): send a JSON task in UTF-8."},
+                {
+                    "detail": "the body could not be read as JSON (not UTF-8, or nested too "
+                    "deep): send a JSON task in UTF-8."
+                },
                 status_code=422,
             )
         if error.status_code == 405:

@@ -38,6 +38,9 @@ ActiveStates = Callable[[], Iterable[str]]  # the state of each active request
 # (what was asked, forged or untrusted) -> replies dropped (robocloud.federation.presence)
 DroppedReplies = Callable[[], Mapping[tuple[str, str], int]]
 RefusedReserves = Callable[[], Mapping[str, int]]  # origin -> reservations refused by a bound
+# (party, message) -> messages the router's access control refused
+# (robocloud.federation.security.router_refusals)
+RouterRefusals = Callable[[], Mapping[tuple[str, str], int]]
 
 
 class IaasMetrics:
@@ -137,12 +140,16 @@ class IaasMetrics:
 
         self._gauges = _Gauges("", lambda: (), lambda: ())
         self.registry.register(self._gauges)
-        self._refusals = _Refusals(dict, dict)
+        self._refusals = _Refusals(dict, dict, dict)
         self.registry.register(self._refusals)
 
     def observe_refusals(self, replies: DroppedReplies, reserves: RefusedReserves) -> None:
         """Where the security counters read at each scrape: the overlay's, the home's."""
         self._refusals.replies, self._refusals.reserves = replies, reserves
+
+    def observe_router(self, refused: RouterRefusals) -> None:
+        """Where the router's refusals are read at each scrape (with access control only)."""
+        self._refusals.router = refused
 
     def observe_states(self, cloud: str, robots: RobotCounts, active: ActiveStates) -> None:
         """Where the gauges read at each scrape: the robots (cloud, status), the active requests."""
@@ -165,7 +172,14 @@ class IaasMetrics:
 
 # Why a robot failed its part of a request (``robocloud.iaas.lifecycle.Failure``).
 FAILURE_CAUSES = (
-    "no_ack", "overrun", "stalled", "offline", "silent", "reported", "dropped", "loan_ended",
+    "no_ack",
+    "overrun",
+    "stalled",
+    "offline",
+    "silent",
+    "reported",
+    "dropped",
+    "loan_ended",
 )
 
 
@@ -216,9 +230,12 @@ class _Gauges:
 class _Refusals:
     """Counters kept by the overlay and the home, read at scrape time."""
 
-    def __init__(self, replies: DroppedReplies, reserves: RefusedReserves) -> None:
+    def __init__(
+        self, replies: DroppedReplies, reserves: RefusedReserves, router: RouterRefusals
+    ) -> None:
         self.replies = replies
         self.reserves = reserves
+        self.router = router
 
     def describe(self) -> list[Metric]:
         return []
@@ -244,3 +261,14 @@ class _Refusals:
         for origin, n in sorted(self.reserves().items()):
             refused.add_metric([origin], n)
         yield refused
+        router = CounterMetricFamily(
+            "robocloud_router_refusals",
+            "Messages this cloud's Zenoh router dropped because its access control does not "
+            "allow them (a robot's certificate declaring a cloud, answering for one, putting "
+            "another robot's state...), by the sender's certificate name (or login) and the "
+            "kind of message. Counted with access control only (mutual TLS or logins).",
+            labels=["party", "message"],
+        )
+        for (party, message), n in sorted(self.router().items()):
+            router.add_metric([party, message], n)
+        yield router

@@ -127,3 +127,49 @@ def test_a_robot_s_listed_age_is_that_of_what_it_last_said() -> None:
     clock.now += 1.0
     assert latest.accept(state_of("a-0", seq=5))  # sent_at 5.0: something new
     assert latest.ages()["a-0"] == pytest.approx(0.0)
+
+
+def ordered(seq: int, sent_at: float, session: str | None = None, battery: float = 90.0) -> State:
+    return state_of("a-0", seq).model_copy(
+        update={"sent_at": sent_at, "session": session, "battery": battery}
+    )
+
+
+def test_a_new_session_starts_its_own_order_and_an_old_ones_replays_are_dropped() -> None:
+    """Protocol 1.2's ``session``: seq orders one session's states; another session's
+    state is newer only if sent later."""
+    from robocloud.fleet.link import LatestStates
+
+    clock = Clock()
+    latest = LatestStates("cloud-a", offline_after=5.0, clock=clock, wall=clock)
+    assert latest.accept(ordered(500, 100.0, "boot-1"))
+    assert latest.accept(ordered(501, 100.5, "boot-1"))
+    assert not latest.accept(ordered(500, 100.0, "boot-1")), "a replay of the same session"
+    clock.now = 101.0
+    # The robot restarts: a new session, counting from 0, sent later.
+    assert latest.accept(ordered(0, 101.0, "boot-2"))
+    # The old session's messages, replayed: another session, sent before.
+    assert not latest.accept(ordered(502, 100.6, "boot-1"))
+    assert not latest.accept(ordered(10**9, 100.9, "boot-1")), "a huge seq is no help"
+    assert latest.accept(ordered(1, 101.2, "boot-2"))
+    assert latest.states()["a-0"].session == "boot-2" and latest.states()["a-0"].seq == 1
+
+
+def test_a_state_forged_ahead_is_overtaken_by_the_robots_next_ones() -> None:
+    """Issue 25: a state with a huge seq and a sent_at ahead counts as sent when it
+    arrived (plus ARRIVAL_SLACK): the robot's own states win again seconds later,
+    whatever session the forger names (the real one's too: it is on the wire)."""
+    from robocloud.fleet.link import LatestStates
+    from robocloud.fleet.messages import ARRIVAL_SLACK
+
+    for forged_session in (None, "boot-1", "made-up"):
+        clock = Clock()
+        latest = LatestStates("cloud-a", offline_after=5.0, clock=clock, wall=clock)
+        assert latest.accept(ordered(7, 100.0, "boot-1"))
+        clock.now = 100.5
+        assert latest.accept(ordered(2**62, 100.5 + 290.0, forged_session, battery=1.0))
+        clock.now = 101.0
+        assert not latest.accept(ordered(8, 101.0, "boot-1")), "sent before the slack ends"
+        clock.now = 100.5 + ARRIVAL_SLACK + 0.1
+        assert latest.accept(ordered(9, clock.now, "boot-1", battery=80.0)), forged_session
+        assert latest.states()["a-0"].battery == 80.0

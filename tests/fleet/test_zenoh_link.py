@@ -264,7 +264,9 @@ def test_a_forged_state_cannot_hide_a_robot(
         lambda s: errors.append(json.loads(s.payload.to_bytes())),
     )
     key = keys.state_key("cloud-a", "a-0100")
-    with ZenohRobotLink(router, "cloud-a", offline_after=5.0, clock=clock) as link:
+    with ZenohRobotLink(
+        router, "cloud-a", offline_after=5.0, clock=clock, wall=lambda: NOW + clock.now
+    ) as link:
         until_subscribed(client, key)
         until_subscribed(router, keys.error_key("cloud-a", "a-0100"))
         client.put(key, state("a-0100", seq=1))
@@ -276,13 +278,17 @@ def test_a_forged_state_cannot_hide_a_robot(
         assert "ahead of this IaaS's clock; at most 300 s apart" in str(errors[0]["error"])
         client.put(key, state("a-0100", seq=2, battery=80.0))
         assert wait_until(lambda: link.states()["a-0100"].battery == 80.0)
-        # Within the bound but ahead of every real state: held until the
-        # robot's clock passes it (at most the bound), then the robot is back.
+        # Within the bound but ahead of every real state: it counts as sent when it
+        # arrived plus ARRIVAL_SLACK (2 s), so the robot's next states overtake it.
+        kept: list[float] = []
+        link.on_state(lambda s: kept.append(s.battery) if s.id == "a-0100" else None)
         client.put(key, state("a-0100", seq=2**62, sent_at=NOW + 250, battery=2.0))
         assert wait_until(lambda: link.states()["a-0100"].battery == 2.0)
-        client.put(key, state("a-0100", seq=3, battery=70.0))  # dropped: older than held
-        client.put(key, state("a-0100", seq=4, sent_at=NOW + 251, battery=60.0))
+        client.put(key, state("a-0100", seq=3, sent_at=NOW + 1, battery=70.0))  # dropped
+        clock.now = 3.0  # 3 s on, for the IaaS and the robot
+        client.put(key, state("a-0100", seq=4, sent_at=NOW + 3, battery=60.0))
         assert wait_until(lambda: link.states()["a-0100"].battery == 60.0)
+        assert kept == [2.0, 60.0], "the robot's state sent within the slack was dropped"
         assert {r.id: r.status for r in link.robots()}["a-0100"] == "idle"
     told.undeclare()  # type: ignore[no-untyped-call]
 

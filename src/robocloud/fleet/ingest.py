@@ -30,7 +30,7 @@ from msgspec import Meta
 from robocloud.domain import Capability
 from robocloud.domain.robot import MAX_AMOUNT, MAX_COORDINATE, MAX_SPEED, MIN_SPEED
 from robocloud.errors import describe_validation_errors
-from robocloud.fleet.messages import State, TaskProgress
+from robocloud.fleet.messages import MAX_SESSION_LENGTH, SESSION_PATTERN, State, TaskProgress
 
 # Without the name pattern (a regex per string costs more than the rest of
 # the state): ``_names_ok`` checks names instead, remembering those seen.
@@ -72,6 +72,10 @@ class WireState(msgspec.Struct, gc=False):
     task: WireTask | None = None
     last_task: WireTask | None = None
     protocol: Annotated[str, Meta(max_length=16, pattern=r"^[0-9]+\.[0-9]+$")] | None = None  # 1.2
+    session: (  # 1.2
+        Annotated[str, Meta(min_length=1, max_length=MAX_SESSION_LENGTH, pattern=SESSION_PATTERN)]
+        | None
+    ) = None
 
 
 class _Id(msgspec.Struct):
@@ -271,6 +275,7 @@ class StateReader:
                 "seq": wire.seq,
                 "sent_at": wire.sent_at,
                 "protocol": wire.protocol,
+                "session": wire.session,
             },
             _STATE_FIELDS,
         )

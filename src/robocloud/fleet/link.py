@@ -30,7 +30,7 @@ from robocloud.errors import Unavailable
 from robocloud.fleet import keys
 from robocloud.fleet.columns import StateColumns
 from robocloud.fleet.ingest import Refusal, StateReader
-from robocloud.fleet.messages import Ack, Assign, Cancel, Start, State
+from robocloud.fleet.messages import ARRIVAL_SLACK, Ack, Assign, Cancel, Start, State
 from robocloud.fleet.state_errors import (
     MAX_BATCH_BYTES,
     MAX_BATCH_STATES,
@@ -111,10 +111,12 @@ class LatestStates:
         clock: Callable[[], float],
         forget_after: float = FORGET_AFTER,
         max_fleet: int = MAX_FLEET,
+        wall: Callable[[], float] = time.time,
     ) -> None:
         self.cloud = cloud
         self.offline_after = offline_after
         self.clock = clock
+        self.wall = wall  # this IaaS's unix clock, against the states' sent_at
         self.forget_after = forget_after
         self.max_fleet = max_fleet
         self._lock = threading.Lock()
@@ -179,13 +181,15 @@ class LatestStates:
     def _keep(self, state: State, now: float) -> bool:
         """Hold ``state`` if it is newer (the caller holds the lock)."""
         held = self._states.get(state.id)
-        # A smaller seq sent later is a restarted robot; otherwise an old
-        # or repeated message (a reconnected robot may send its last one
-        # again). A state forged with a huge seq and a later sent_at hides
-        # the real robot only until the robot's clock passes that sent_at:
-        # the links refuse one more than MAX_CLOCK_SKEW ahead.
-        if held is not None and state.seq <= held.seq and state.sent_at <= held.sent_at:
-            return False
+        # An old or repeated message (a reconnected robot may send its last one
+        # again) is dropped; a restarted robot's is not (State.is_newer_than).
+        # The held state counts as sent no later than it arrived (plus a slack):
+        # one forged with a huge seq and a sent_at ahead is overtaken by the
+        # robot's own within seconds.
+        if held is not None:
+            arrived = self.wall() - (now - self._received[state.id])
+            if not state.is_newer_than(held, arrived + ARRIVAL_SLACK):
+                return False
         if held is None and len(self._states) >= self.max_fleet:
             self._forget_silent(now)
             if len(self._states) >= self.max_fleet:
@@ -350,7 +354,7 @@ class ZenohRobotLink:
         self._wall = wall
         self._cloud = keys.check_chunk(cloud, "cloud")
         self._timeout = command_timeout
-        self._latest = LatestStates(cloud, offline_after, clock, forget_after, max_fleet)
+        self._latest = LatestStates(cloud, offline_after, clock, forget_after, max_fleet, wall)
         self._errors = StateErrors(session, self._cloud)
         self._reader = StateReader()
         self._subscriber = session.declare_subscriber(keys.all_states(cloud), self._on_sample)

@@ -29,6 +29,7 @@ null; a receiver handles it once per request. ``last_task`` (optional) keeps
 the last finished task until the robot is given another, so an IaaS that was
 down while the robot finished still learns how it ended. ``seq`` increases with every
 message of the robot; ``sent_at`` is the robot's unix time in seconds.
+``State.is_newer_than`` is the one rule that orders a robot's states.
 
 Command: the IaaS sends a Zenoh query (``get``) to
 ``robocloud/<cloud>/robots/<id>/cmd`` whose payload is one of::
@@ -85,6 +86,15 @@ HOLD_SINCE = (1, 2)
 Phase = Literal["travel", "waiting", "work", "done", "failed"]
 PHASES: tuple[str, ...] = ("travel", "waiting", "work", "done", "failed")
 FINISHED_PHASES: frozenset[str] = frozenset({"done", "failed"})
+
+# Since 1.2: a robot's session, the id it picks each time it starts (its Zenoh session
+# id): letters, digits, and . _ : - only, so it is never more than a token in a log line.
+SESSION_PATTERN = r"^[0-9A-Za-z_.:-]+$"
+MAX_SESSION_LENGTH = 64
+# A held state counts as sent at most this long after it arrived (seconds): a state
+# forged with a sent_at far ahead hides its robot about this long, not until the
+# robot's clock passes it (docs/protocol.md, "seq and sent_at").
+ARRIVAL_SLACK = 2.0
 
 _WIRE = ConfigDict(extra="ignore", frozen=True)
 # The fields every Robot of ``State.to_robot`` sets: one set shared by them all.
@@ -155,6 +165,34 @@ class State(BaseModel):
         description="the protocol version the robot speaks, MAJOR.MINOR (since 1.2; none: "
         "1.0 or 1.1). From 1.2 on the IaaS may send it an assign with hold and a start",
     )
+    session: (
+        Annotated[
+            str,
+            Field(min_length=1, max_length=MAX_SESSION_LENGTH, pattern=SESSION_PATTERN),
+        ]
+        | None
+    ) = Field(
+        None,
+        description="since 1.2: the robot's session, an id it picks each time it starts "
+        "(e.g. its Zenoh session id). States of one session are ordered by seq; a state of "
+        "another session is newer only if sent later (none: one session for ever)",
+    )
+
+    def is_newer_than(self, held: State, held_until: float = float("inf")) -> bool:
+        """Whether this state is newer than ``held``, the one kept for the same robot.
+
+        Of one session (both name the same, or neither names one): a greater
+        ``seq``, or a later ``sent_at`` (a robot of protocol 1.0 or 1.1 that
+        restarted counts again from 0). Of another session: a later
+        ``sent_at`` only, its ``seq`` being its own. ``held`` counts as sent
+        no later than ``held_until`` (when it arrived plus ARRIVAL_SLACK): a
+        state forged with a huge ``seq`` and a ``sent_at`` ahead is overtaken
+        by the robot's next states within seconds.
+        """
+        held_at = min(held.sent_at, held_until)
+        if self.session != held.session:
+            return self.sent_at > held_at
+        return self.seq > held.seq or self.sent_at > held_at
 
     @property
     def holds(self) -> bool:

@@ -21,6 +21,7 @@ that stamps the states.
 
 from __future__ import annotations
 
+import secrets
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -51,6 +52,11 @@ FINISHED_LINGER = 3.0
 # The kind follows the actuator, as in the thesis's NXT prototype.
 KIND_BY_ACTUATOR = {"grabber": "tribot", "kicker": "base"}
 _EPSILON = 1e-9
+
+
+# The robots' session (protocol 1.2): they all start with the simulator's process, so a
+# restarted simulator's robots start an order of their own (State.is_newer_than).
+SESSION = secrets.token_hex(8)
 
 
 @dataclass
@@ -154,6 +160,7 @@ class SimRobot:
             seq=self.seq,
             sent_at=now,
             protocol=PROTOCOL_VERSION,
+            session=SESSION,
         )
 
     def state(self, now: float) -> State:
@@ -184,6 +191,7 @@ class SimRobot:
             seq=self.seq,
             sent_at=now,
             protocol=PROTOCOL_VERSION,
+            session=SESSION,
         )
 
     # Commands -------------------------------------------------------------

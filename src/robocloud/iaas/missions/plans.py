@@ -20,6 +20,7 @@ from typing import Any
 
 from robocloud.domain import Robot
 from robocloud.domain.mission_ids import task_request_id
+from robocloud.fleet.messages import State
 from robocloud.planning.bounds import lower_bound
 from robocloud.planning.construction import best_construction
 from robocloud.planning.mission import Mission, MissionInput, MissionTask, to_problem
@@ -74,9 +75,9 @@ class RobotRun:
     state: str = "assigned"
     sent: int = 0  # legs sent so far (the current one is ``legs[sent - 1]``)
     sent_wall: float | None = None  # when the current leg's assign was sent
-    # (seq, sent_at) of the robot's newest state when that assign was sent: a
-    # state no newer is from before it (the task ids of a re-planned task repeat).
-    sent_after: tuple[int, float] = (-1, float("-inf"))
+    # The robot's newest state when that assign was sent: a state no newer
+    # (State.is_newer_than) is from before it (a re-planned task's ids repeat).
+    sent_after: State | None = None
     heard_wall: float = 0.0  # its latest report
     joined_wall: float = 0.0  # when the mission took it
     position: tuple[float, float] = (0.0, 0.0)

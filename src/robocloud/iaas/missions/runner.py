@@ -38,7 +38,6 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import math
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from typing import Any
@@ -332,7 +331,7 @@ class MissionRunner:
         member.sent += 1
         member.sent_wall = ports.wall()
         heard = ports.state_of(member.id)
-        member.sent_after = (heard.seq, heard.sent_at) if heard is not None else (-1, -math.inf)
+        member.sent_after = heard
         member.state = "travel"
         ports.route(record.id, member.id, wire)
         command = Assign(
@@ -356,9 +355,9 @@ class MissionRunner:
         leg = member.current
         if leg is None:
             return
-        if state.seq <= member.sent_after[0] and state.sent_at <= member.sent_after[1]:
-            # Sent before its current assign (a smaller seq sent later is a restart):
-            # "work" on the task id of a task since planned again is not this leg's.
+        if member.sent_after is not None and not state.is_newer_than(member.sent_after):
+            # Sent before its current assign: "work" on the task id of a task since
+            # planned again is not this leg's.
             return
         run = self.record.tasks[leg.task]
         wire = run.wire(self.record.id)

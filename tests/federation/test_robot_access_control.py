@@ -92,3 +92,55 @@ def test_make_certs_makes_a_robots_certificate(tmp_path: Path) -> None:
     assert {"id": "robot-b-7", "cert_common_names": ["cloud-b-robot-b-7"]} in entries[
         "access_control"
     ]["subjects"]
+
+
+def test_a_gateway_certificate_gets_its_robots_keys_only() -> None:
+    acl = access_control("cloud-b", ["cloud-a"], gateways=[("gw-1", ["b-1", "b-2"])])
+    rules = {rule["id"]: rule for rule in acl["rules"]}
+    assert {"id": "gateway-gw-1", "cert_common_names": ["cloud-b-gateway-gw-1"]} in acl[
+        "subjects"
+    ]
+    assert rules["gateway-gw-1-states"]["messages"] == ["put"]
+    assert rules["gateway-gw-1-states"]["key_exprs"] == [
+        "robocloud/cloud-b/fleets/gw-1/states",
+        "robocloud/cloud-b/robots/b-1/state",
+        "robocloud/cloud-b/robots/b-2/state",
+    ]
+    assert rules["gateway-gw-1-commands"]["messages"] == ["declare_queryable", "reply"]
+    assert rules["gateway-gw-1-commands"]["key_exprs"] == [
+        "robocloud/cloud-b/robots/b-1/cmd",
+        "robocloud/cloud-b/robots/b-2/cmd",
+    ]
+
+
+def test_the_gateways_file_is_a_gateway_a_line_with_its_robots(tmp_path: Path) -> None:
+    from robocloud.federation.security.configuration import read_gateways
+
+    path = tmp_path / "gateways.txt"
+    path.write_text("# cloud-b's gateways\ngw-1 b-1 b-2\n\n  gw-2   b-3  \n")
+    assert read_gateways(path) == (("gw-1", ("b-1", "b-2")), ("gw-2", ("b-3",)))
+    for text, sentence in (
+        ("gw-1\n", "names gateway 'gw-1' but no robot"),
+        ("gw-1 b-1\ngw-1 b-2\n", "gateway 'gw-1' is listed twice"),
+        ("gw-1 b-1\ngw-2 b-1\n", "robot 'b-1' is listed for gateways 'gw-1' and 'gw-2'"),
+        ("gw/1 b-1\n", "gateway name 'gw/1'"),
+        ("# none\n", "lists no gateway"),
+    ):
+        path.write_text(text)
+        with pytest.raises(InvalidInput, match=sentence):
+            read_gateways(path)
+
+
+def test_gateways_need_mutual_tls(tmp_path: Path) -> None:
+    path = tmp_path / "gateways.txt"
+    path.write_text("gw-1 b-1\n")
+    iaas = [sys.executable, "-m", "robocloud.cli.main", "iaas", "--cloud", "cloud-b"]
+    done = subprocess.run(
+        [*iaas, "--gateways", str(path)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        stdin=subprocess.DEVNULL,
+    )
+    assert done.returncode == 2, done.stderr
+    assert "Traceback" not in done.stderr and "need mutual TLS" in done.stderr

@@ -73,6 +73,14 @@ def all_batches(cloud: str) -> str:
     return f"{fleets_prefix(cloud)}/*/states"
 
 
+def gateway_of(key: str) -> str | None:
+    """The gateway a batch key names (``robocloud/<cloud>/fleets/<gateway>/states``)."""
+    parts = key.split("/")
+    if len(parts) == 5 and parts[0] == ROOT and parts[2] == "fleets" and parts[4] == "states":
+        return parts[3]
+    return None
+
+
 def robot_of(key: str) -> str | None:
     """The robot id in a ``.../robots/<id>/state``, ``cmd`` or ``error`` key; None for others."""
     parts = key.split("/")

@@ -19,7 +19,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from typing import Protocol
 
 import pydantic
@@ -348,8 +348,13 @@ class ZenohRobotLink:
         max_fleet: int = MAX_FLEET,
         max_clock_skew: float = MAX_CLOCK_SKEW,
         wall: Callable[[], float] = time.time,
+        fronts: Mapping[str, Iterable[str]] | None = None,
     ) -> None:
         self._session = session
+        # Gateways with a certificate of their own -> the robots each fronts: their
+        # batches may hold those robots' states only (the router lets such a gateway
+        # put on its own batch key, and cannot read what is in a batch).
+        self._fronts = {name: frozenset(ids) for name, ids in (fronts or {}).items()}
         self._skew = max_clock_skew
         self._wall = wall
         self._cloud = keys.check_chunk(cloud, "cloud")
@@ -491,10 +496,20 @@ class ZenohRobotLink:
             self._errors.in_batch(key, refusal.robot, refusal.field, refusal.sentence)
         mine = []
         now = self._wall()
+        gateway = keys.gateway_of(key)
+        fronted = self._fronts.get(gateway) if gateway is not None else None
         for state in states:
             late = clock_refusal(state, now, self._skew)
             if late is not None:
                 self._errors.in_batch(key, state.id, "sent_at", late)
+            elif fronted is not None and state.id not in fronted:
+                self._errors.in_batch(
+                    key,
+                    state.id,
+                    "id",
+                    f"id: robot {state.id} is not one of the robots gateway {gateway} fronts "
+                    "(its IaaS's --gateways); its state was not kept.",
+                )
             elif state.cloud != self._cloud:
                 self._errors.in_batch(
                     key,

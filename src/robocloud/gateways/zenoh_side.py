@@ -2,10 +2,10 @@
 
 - ``ZenohRobots``: for each robot (an AGV, a brick, a ROS 2 robot) a command
   queryable and a state publisher, the keys of any robot.
-- ``ZenohFleet``: as a fleet gateway ("Fleet gateways"): one wildcard command
-  queryable answering for the robots it fronts, and their states on the
-  gateway's batch key (``--gateway-name NAME`` of ``robocloud vda5050``,
-  ``robocloud nxt``, ``robocloud ros2``).
+- ``ZenohFleet``: as a fleet gateway ("Fleet gateways"): a command queryable
+  per robot it fronts, and their states on the gateway's batch key
+  (``--gateway-name NAME`` of ``robocloud vda5050``, ``robocloud nxt``,
+  ``robocloud ros2``).
 
 Either is all a gateway knows of Zenoh, on one Zenoh client session.
 """
@@ -106,11 +106,13 @@ class ZenohRobots:
 
 
 class ZenohFleet:
-    """The AGVs of ``cloud`` behind one gateway named ``name``: two declarations in all.
+    """The robots of ``cloud`` behind one gateway named ``name``, on its batch key.
 
     Each state is published as it comes, as a batch of one on the gateway's
-    batch key (a VDA 5050 fleet is small; what the gateway saves is the two
-    declarations per AGV).
+    batch key (a gateway's fleet is small; what it saves is a publisher per
+    robot). Commands come on each robot's own command key, a queryable per
+    robot: a gateway with a certificate of its own (``<cloud>-gateway-<name>``)
+    may declare only its robots' keys, not the wildcard ``robots/*/cmd``.
     """
 
     def __init__(
@@ -120,9 +122,8 @@ class ZenohFleet:
         self._cloud = keys.check_chunk(cloud, "cloud")
         self._on_command = on_command
         self._lock = threading.Lock()
-        self._robots: set[str] = set()
+        self._robots: dict[str, zenoh.Queryable[None]] = {}
         self._publisher = session.declare_publisher(keys.batch_key(cloud, name), encoding=_JSON)
-        self._queryable = session.declare_queryable(keys.all_cmds(cloud), self._answer)
 
     @property
     def cloud(self) -> str:
@@ -134,11 +135,18 @@ class ZenohFleet:
 
     def add(self, robot: str) -> None:
         with self._lock:
-            self._robots.add(robot)
+            if robot in self._robots:
+                return
+            self._robots[robot] = self._session.declare_queryable(
+                keys.cmd_key(self._cloud, robot), lambda query: self._answer(robot, query)
+            )
 
     def remove(self, robot: str) -> None:
         with self._lock:
-            self._robots.discard(robot)
+            queryable = self._robots.pop(robot, None)
+        if queryable is not None:
+            with contextlib.suppress(zenoh.ZError):
+                queryable.undeclare()  # type: ignore[no-untyped-call]
 
     def publish(self, state: State) -> None:
         if self.has(state.id):
@@ -146,16 +154,14 @@ class ZenohFleet:
 
     def close(self) -> None:
         with self._lock:
-            self._robots.clear()
-        for entity in (self._queryable, self._publisher):
-            with contextlib.suppress(zenoh.ZError):
-                entity.undeclare()  # type: ignore[no-untyped-call]
+            robots = list(self._robots)
+        for robot in robots:
+            self.remove(robot)
+        with contextlib.suppress(zenoh.ZError):
+            self._publisher.undeclare()  # type: ignore[no-untyped-call]
 
-    def _answer(self, query: zenoh.Query) -> None:
+    def _answer(self, robot: str, query: zenoh.Query) -> None:
         with query:
-            robot = keys.robot_of(str(query.key_expr))
-            if robot is None or not self.has(robot):
-                return  # not an AGV of this gateway: another answers, or nobody
             _reply(self._cloud, robot, query, self._on_command)
 
 

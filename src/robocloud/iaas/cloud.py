@@ -96,6 +96,7 @@ async def build_cloud(
                 command_timeout=settings.ack_timeout,
                 forget_after=settings.forget_after,
                 max_fleet=settings.max_fleet,
+                fronts=dict(security.gateways) if security else None,
             )
             stack.callback(link.close)
         routes = RobotRoutes(settings.set_aside_for)

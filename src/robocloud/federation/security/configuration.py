@@ -52,6 +52,9 @@ class OverlaySecurity:
     ``cloud`` and ``trusted`` (set by ``for_cloud``): the access control.
     ``robot_ids``: the robots of this router's cloud that have a certificate
     of their own (``<cloud>-robot-<id>``): each may speak for itself only.
+    ``gateways``: the gateways of this router's cloud that have a certificate
+    of their own (``<cloud>-gateway-<name>``), each with the robots it fronts:
+    each may speak for those robots only.
     """
 
     ca: Path | None = None
@@ -63,6 +66,7 @@ class OverlaySecurity:
     cloud: str | None = None
     trusted: tuple[str, ...] = ()
     robot_ids: tuple[str, ...] = ()
+    gateways: tuple[tuple[str, tuple[str, ...]], ...] = ()
 
     def __post_init__(self) -> None:
         for name in ("ca", "cert", "key", "credentials"):
@@ -71,11 +75,20 @@ class OverlaySecurity:
                 object.__setattr__(self, name, Path(value))
         object.__setattr__(self, "trusted", tuple(self.trusted))
         object.__setattr__(self, "robot_ids", tuple(self.robot_ids))
+        object.__setattr__(
+            self, "gateways", tuple((name, tuple(ids)) for name, ids in self.gateways)
+        )
         if self.robot_ids and self.cert is None:
             raise InvalidInput(
                 "robots with their own certificate (--robot-ids) need mutual TLS: give this "
                 "router its certificate (--tls-ca, --tls-cert, --tls-key).",
                 field="robot_ids",
+            )
+        if self.gateways and self.cert is None:
+            raise InvalidInput(
+                "gateways with their own certificate (--gateways) need mutual TLS: give this "
+                "router its certificate (--tls-ca, --tls-cert, --tls-key).",
+                field="gateways",
             )
         if (self.cert is None) != (self.key is None):
             raise InvalidInput(
@@ -117,6 +130,7 @@ class OverlaySecurity:
         password_file: str | Path | None = None,
         credentials: str | Path | None = None,
         robot_ids_file: str | Path | None = None,
+        gateways_file: str | Path | None = None,
     ) -> OverlaySecurity | None:
         """The security the command-line options ask for; None when they ask for none.
 
@@ -129,7 +143,9 @@ class OverlaySecurity:
             lines = _read_text(path, "Zenoh password file", "password").splitlines()
             password = lines[0] if lines else ""
         robot_ids = read_robot_ids(Path(robot_ids_file)) if robot_ids_file is not None else ()
-        if all(v is None for v in (ca, cert, key, user, password, credentials, robot_ids_file)):
+        gateways = read_gateways(Path(gateways_file)) if gateways_file is not None else ()
+        files = (credentials, robot_ids_file, gateways_file)
+        if all(v is None for v in (ca, cert, key, user, password, *files)):
             return None
         return cls(
             ca=Path(ca) if ca is not None else None,
@@ -139,6 +155,7 @@ class OverlaySecurity:
             password=password,
             credentials=Path(credentials) if credentials is not None else None,
             robot_ids=robot_ids,
+            gateways=gateways,
         )
 
     # -- what it turns on ------------------------------------------------------
@@ -215,7 +232,11 @@ class OverlaySecurity:
             from robocloud.federation.security.policy import access_control
 
             entries["access_control"] = access_control(
-                self.cloud, self.trusted, by_certificate=self.mutual_tls, robot_ids=self.robot_ids
+                self.cloud,
+                self.trusted,
+                by_certificate=self.mutual_tls,
+                robot_ids=self.robot_ids,
+                gateways=self.gateways,
             )
         return entries
 
@@ -250,6 +271,29 @@ def read_robot_ids(path: Path) -> tuple[str, ...]:
     if not ids:
         raise InvalidInput(f"the robot ids file {path} lists no robot id.", field="robot_ids")
     return check_robot_ids(ids)
+
+
+def read_gateways(path: Path) -> tuple[tuple[str, tuple[str, ...]], ...]:
+    """The gateways of a ``--gateways`` file: a gateway a line, its name then the ids of
+    the robots it fronts, separated by spaces; blank lines and ``#`` comments skipped."""
+    from robocloud.federation.security.policy import check_gateways
+
+    text = _read_text(path, "gateways file", "gateways")
+    gateways = []
+    for number, line in enumerate(text.splitlines(), 1):
+        words = line.split()
+        if not words or words[0].startswith("#"):
+            continue
+        if len(words) < 2:
+            raise InvalidInput(
+                f"line {number} of the gateways file {path} names gateway {words[0]!r} but no "
+                "robot: write the gateway's name, then the ids of the robots it fronts.",
+                field="gateways",
+            )
+        gateways.append((words[0], tuple(words[1:])))
+    if not gateways:
+        raise InvalidInput(f"the gateways file {path} lists no gateway.", field="gateways")
+    return check_gateways(gateways)
 
 
 def _read_text(path: Path, what: str, field: str) -> str:
@@ -326,6 +370,14 @@ def add_arguments(parser: argparse.ArgumentParser, router: bool) -> None:
             "(common name CLOUD-robot-ID): each may put only its own state and answer only its "
             "own commands (needs --tls-cert; read at start)",
         )
+        group.add_argument(
+            "--gateways",
+            metavar="FILE",
+            help="a gateway a line: its name, then the ids of the robots it fronts, of this "
+            "cloud's gateways that have their own certificate (common name "
+            "CLOUD-gateway-NAME): each may speak only for its robots (needs --tls-cert; read "
+            "at start)",
+        )
 
 
 def from_arguments(args: argparse.Namespace) -> OverlaySecurity | None:
@@ -343,6 +395,7 @@ def from_arguments(args: argparse.Namespace) -> OverlaySecurity | None:
         password_file=args.zenoh_password_file,
         credentials=getattr(args, "zenoh_credentials", None),
         robot_ids_file=getattr(args, "robot_ids", None),
+        gateways_file=getattr(args, "gateways", None),
     )
     cloud, trusted = getattr(args, "cloud", None), getattr(args, "trust", None)
     if security is not None and cloud is not None and trusted is not None:

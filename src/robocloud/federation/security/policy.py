@@ -14,6 +14,12 @@ allowed by list:
   control key; the simulator's liveliness token. Not another cloud's keys,
   not a presence token, not a reply to a cloud's question: a robot's
   certificate cannot fabricate a cloud or answer for one;
+- **one gateway G of X** (``X-gateway-G``, when G is among the router's
+  gateways, with the robots it fronts): states on its own batch key
+  (``robocloud/X/fleets/G/states``) and on its robots' state keys; a
+  queryable and its replies on its robots' command keys, one by one (not the
+  wildcard ``robots/*/cmd``). That a batch holds only its robots' states is
+  the IaaS's check (``fleet/link.py``): the router does not read payloads;
 - **one robot R of X** (``X-robot-R``, when R is among the router's robot
   ids): its own state (``robocloud/X/robots/R/state``), a queryable and its
   replies on its own command key (``robocloud/X/robots/R/cmd``); nothing of
@@ -93,6 +99,34 @@ def robot_name(cloud: str, robot_id: str) -> str:
     return f"{cloud}-robot-{robot_id}"
 
 
+def gateway_name(cloud: str, gateway: str) -> str:
+    """The common name of a gateway's own certificate: it speaks for its robots only."""
+    return f"{cloud}-gateway-{gateway}"
+
+
+def check_gateways(
+    gateways: Sequence[tuple[str, Sequence[str]]],
+) -> tuple[tuple[str, tuple[str, ...]], ...]:
+    """Gateways with their robots, checked: key chunks, each gateway once, each robot in one."""
+    checked: list[tuple[str, tuple[str, ...]]] = []
+    owner: dict[str, str] = {}
+    for name, ids in gateways:
+        gateway = check_chunk(name, "gateway name")
+        if any(gateway == seen for seen, _ in checked):
+            raise InvalidInput(f"the gateway {gateway!r} is listed twice.", field="gateways")
+        robots = check_robot_ids(ids)
+        for rid in robots:
+            if rid in owner:
+                raise InvalidInput(
+                    f"robot {rid!r} is listed for gateways {owner[rid]!r} and {gateway!r}: "
+                    "a robot is fronted by one gateway.",
+                    field="gateways",
+                )
+            owner[rid] = gateway
+        checked.append((gateway, robots))
+    return tuple(checked)
+
+
 def check_robot_ids(robot_ids: Sequence[str]) -> tuple[str, ...]:
     """The robot ids that have their own certificate, checked: key chunks, each once."""
     names = tuple(check_chunk(rid, "robot id") for rid in robot_ids)
@@ -109,11 +143,15 @@ def access_control(
     trusted: Sequence[str] = (),
     by_certificate: bool = True,
     robot_ids: Sequence[str] = (),
+    gateways: Sequence[tuple[str, Sequence[str]]] = (),
 ) -> dict[str, Any]:
     """Zenoh ``access_control`` for the router of ``cloud`` (see the module's docstring).
 
     ``robot_ids``: the robots of ``cloud`` with a certificate of their own
     (``robot_name``); each gets one subject and its own keys only.
+    ``gateways``: the gateways of ``cloud`` with a certificate of their own
+    (``gateway_name``) and the robots each fronts; each gets one subject and
+    the keys of its robots only.
     """
     trusted = check_trusted(cloud, trusted, by_certificate)
     if not by_certificate:
@@ -175,6 +213,30 @@ def access_control(
                 "id": f"robot-{rid}",
                 "subjects": [f"robot-{rid}"],
                 "rules": [f"state-of-{rid}", f"commands-of-{rid}"],
+            }
+        )
+    for gateway, ids in check_gateways(gateways):
+        rules += [
+            _rule(
+                f"gateway-{gateway}-states",
+                ["ingress"],
+                ["put"],
+                [robot_keys.batch_key(cloud, gateway)]
+                + [robot_keys.state_key(cloud, rid) for rid in ids],
+            ),
+            _rule(
+                f"gateway-{gateway}-commands",
+                ["ingress"],
+                ["declare_queryable", "reply"],
+                [robot_keys.cmd_key(cloud, rid) for rid in ids],
+            ),
+        ]
+        subjects.append({"id": f"gateway-{gateway}", by: [gateway_name(cloud, gateway)]})
+        policies.append(
+            {
+                "id": f"gateway-{gateway}",
+                "subjects": [f"gateway-{gateway}"],
+                "rules": [f"gateway-{gateway}-states", f"gateway-{gateway}-commands"],
             }
         )
     for name in trusted:

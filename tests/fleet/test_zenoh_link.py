@@ -289,6 +289,7 @@ def test_a_forged_state_cannot_hide_a_robot(
         client.put(key, state("a-0100", seq=4, sent_at=NOW + 3, battery=60.0))
         assert wait_until(lambda: link.states()["a-0100"].battery == 60.0)
         assert kept == [2.0, 60.0], "the robot's state sent within the slack was dropped"
+        assert link.state_refusals() == {"sent_at": 1, "overtaken": 1}
         assert {r.id: r.status for r in link.robots()}["a-0100"] == "idle"
     told.undeclare()  # type: ignore[no-untyped-call]
 

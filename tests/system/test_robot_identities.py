@@ -80,7 +80,10 @@ class Answerer:
 def cloud_a(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Cloud, Path]]:
     tmp_path = tmp_path_factory.mktemp("identities")
     certs = tmp_path / "certs"
-    make_certs(certs, [CLOUD, robot_name(CLOUD, "a-0001"), robot_name(CLOUD, "a-0002")])
+    make_certs(
+        certs,
+        [CLOUD, f"{CLOUD}-robots", robot_name(CLOUD, "a-0001"), robot_name(CLOUD, "a-0002")],
+    )
     ids = tmp_path / "robot-ids.txt"
     ids.write_text("# robots of cloud-a with a certificate of their own\na-0001\na-0002\n")
     flags = [
@@ -183,3 +186,60 @@ def test_a_robot_certificate_speaks_for_its_robot_only(cloud_a: tuple[Cloud, Pat
     ):
         assert any(repr(key) in line and attacker_name in line for line in said), key
     assert all("a-0003" not in line for line in log.splitlines() if line not in said)
+
+
+def test_a_forged_state_hides_a_robot_two_seconds_and_is_told(
+    cloud_a: tuple[Cloud, Path],
+) -> None:
+    """The issue's fourth attack, with the fleet's certificate (which speaks for every robot
+    of the cloud): a-0002's state re-published with ``seq`` 2**62, first with ``sent_at``
+    1e15 (refused), then 250 s ahead (taken, and overtaken by a-0002's own state once
+    ARRIVAL_SLACK has passed). Each leaves a log line and a count of
+    ``robocloud_states_refused``."""
+    cloud, certs = cloud_a
+    real = session_as(cloud, certs, robot_name(CLOUD, "a-0002"))
+    fleet = session_as(cloud, certs, f"{CLOUD}-robots")
+    key = keys.state_key(CLOUD, "a-0002")
+
+    def refused() -> dict[str, float]:
+        with cloud.client() as client:
+            text = client.get("/metrics").text
+        return {
+            line.split('"')[1]: float(line.rsplit(" ", 1)[1])
+            for line in text.splitlines()
+            if line.startswith("robocloud_states_refused_total{")
+        }
+
+    try:
+        real.put(key, state("a-0002", 100, [10.0, 10.0]))
+        wait_until(
+            lambda: listed(cloud).get("a-0002", {}).get("position") == [10.0, 10.0],
+            20,
+            "a-0002's own state",
+        )
+        far = State.model_validate_json(state("a-0002", 2**62, [999.0, 999.0], battery=5.0))
+        fleet.put(key, far.model_copy(update={"sent_at": 1e15}).model_dump_json())
+        wait_until(lambda: refused().get("sent_at") == 1.0, 10, "the far state to be refused")
+        ahead = far.model_copy(update={"sent_at": time.time() + 250.0})
+        fleet.put(key, ahead.model_dump_json())
+        wait_until(
+            lambda: listed(cloud)["a-0002"]["position"] == [999.0, 999.0],
+            10,
+            "the forged state within the bound to be taken",
+        )
+        seq = iter(range(101, 10_000))
+
+        def back() -> bool:
+            real.put(key, state("a-0002", next(seq), [10.0, 10.0]))  # the robot goes on
+            return bool(listed(cloud)["a-0002"]["position"] == [10.0, 10.0])
+
+        # Within 20 s, not the 250 s the forged sent_at claimed: ARRIVAL_SLACK (2 s) after
+        # it arrived, the robot's next state takes its place.
+        wait_until(back, 20, "a-0002's own state to overtake the forged one")
+        wait_until(lambda: refused().get("overtaken") == 1.0, 10, "the overtaking counted")
+    finally:
+        for session in (real, fleet):
+            session.close()  # type: ignore[no-untyped-call]
+    log = (cloud.workdir / f"{CLOUD}-iaas.log").read_text()
+    assert "refused a state on robocloud/cloud-a/robots/a-0002/state (field sent_at)" in log
+    assert f"robot a-0002's state of seq {2**62} claimed to be sent at" in log

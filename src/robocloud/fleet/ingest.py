@@ -143,6 +143,9 @@ class StateReader:
 
     def __init__(self) -> None:
         self._names: set[str] = set()
+        # Each session's text once: the robots of a simulator or gateway share theirs, and a
+        # link keeps 100,000 states (memory per robot, benchmarks/memory.py).
+        self._sessions: dict[str, str] = {}
         # Capability sets are few (robots of a kind share them): each is made
         # into pydantic Capabilities once, and states share the dict (states
         # are frozen; ``to_robot`` copies it).
@@ -275,10 +278,20 @@ class StateReader:
                 "seq": wire.seq,
                 "sent_at": wire.sent_at,
                 "protocol": wire.protocol,
-                "session": wire.session,
+                "session": self._session(wire.session),
             },
             _STATE_FIELDS,
         )
+
+    def _session(self, session: str | None) -> str | None:
+        if session is None:
+            return None
+        kept = self._sessions.get(session)
+        if kept is None:
+            if len(self._sessions) >= _MAX_REMEMBERED:
+                self._sessions.clear()
+            kept = self._sessions[session] = session
+        return kept
 
     def _capability_set(self, raw: bytes) -> dict[str, Capability] | None:
         """The capabilities of ``raw`` (their JSON), checked once and remembered by their bytes."""

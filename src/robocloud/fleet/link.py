@@ -78,6 +78,12 @@ class RobotLink(Protocol):
         """Why the last state of a robot was refused, by id, until one of its states is accepted."""
         ...
 
+    def state_refusals(self) -> dict[str, int]:
+        """States refused so far, by the field that was wrong; ``overtaken``: states held
+        for a while that had claimed a ``sent_at`` ahead and a greater ``seq`` (forged, or a
+        robot that restarted with its clock ahead)."""
+        ...
+
     def assign(self, robot_id: str, command: Assign) -> Ack:
         """Send a task to a robot; its acknowledgement, or not ok when it does not answer."""
         ...
@@ -122,6 +128,7 @@ class LatestStates:
         self._lock = threading.Lock()
         self._pruned_at = clock()
         self._refused = 0  # states of new robots refused since the fleet was full
+        self._overtaken = 0  # held states overtaken because they claimed a time ahead
         self._unavailable_said = -1e9
         self._states: dict[str, State] = {}
         self._received: dict[str, float] = {}
@@ -187,9 +194,11 @@ class LatestStates:
         # one forged with a huge seq and a sent_at ahead is overtaken by the
         # robot's own within seconds.
         if held is not None:
-            arrived = self.wall() - (now - self._received[state.id])
-            if not state.is_newer_than(held, arrived + ARRIVAL_SLACK):
+            held_until = self.wall() - (now - self._received[state.id]) + ARRIVAL_SLACK
+            if not state.is_newer_than(held, held_until):
                 return False
+            if held.sent_at > held_until and not state.is_newer_than(held):
+                self._overtake(state, held)
         if held is None and len(self._states) >= self.max_fleet:
             self._forget_silent(now)
             if len(self._states) >= self.max_fleet:
@@ -220,6 +229,29 @@ class LatestStates:
             self._said[state.id] = now
         self._columns.put(state, now, changed)
         return True
+
+    def _overtake(self, state: State, held: State) -> None:
+        """``held`` claimed a time ahead of its arrival and is overtaken only because of it:
+        say so (the caller holds the lock)."""
+        self._overtaken += 1
+        if self._overtaken <= 20 or self._overtaken % 1000 == 0:
+            logger.warning(
+                "robot %s's state of seq %d claimed to be sent at %.3f, %.1f s after it "
+                "arrived; its state of seq %d, sent at %.3f, takes its place (a forged state, "
+                "or the robot restarted with its clock ahead; %d so far)",
+                held.id,
+                held.seq,
+                held.sent_at,
+                held.sent_at - (self.wall() - ARRIVAL_SLACK),
+                state.seq,
+                state.sent_at,
+                self._overtaken,
+            )
+
+    def overtaken(self) -> dict[str, int]:
+        """``{"overtaken": n}``: held states overtaken because they claimed a time ahead."""
+        with self._lock:
+            return {"overtaken": self._overtaken} if self._overtaken else {}
 
     def _forget_silent(self, now: float) -> None:
         """Drop the robots silent for longer than ``forget_after`` (the caller holds the lock)."""
@@ -386,6 +418,9 @@ class ZenohRobotLink:
 
     def refused(self) -> dict[str, str]:
         return self._errors.refused()
+
+    def state_refusals(self) -> dict[str, int]:
+        return {**self._errors.counts(), **self._latest.overtaken()}
 
     def on_state(self, listener: StateListener) -> Callable[[], None]:
         return self._latest.add_listener(listener)

@@ -76,6 +76,9 @@ class MemoryRobotLink:
     def refused(self) -> dict[str, str]:
         return dict(self.refusals)
 
+    def state_refusals(self) -> dict[str, int]:
+        return self._latest.overtaken()
+
     def on_state(self, listener: StateListener) -> Callable[[], None]:
         return self._latest.add_listener(listener)
 

@@ -81,6 +81,12 @@ class StateErrors:
         # robot -> why its last state was refused, until one of its states is
         # accepted (GET /v1/robots shows it); at most MAX_TRACKED robots.
         self._refused: dict[str, str] = {}
+        self._counts: dict[str, int] = {}  # field -> states refused for it
+
+    def counts(self) -> dict[str, int]:
+        """States refused so far, by the field that was wrong (``state``: the whole)."""
+        with self._lock:
+            return dict(self._counts)
 
     def refused(self) -> dict[str, str]:
         """Why each robot's last state was refused, for robots with no state accepted since."""
@@ -131,6 +137,8 @@ class StateErrors:
             robot = None
         now = self._clock()
         with self._lock:
+            if field in self._counts or len(self._counts) < 64:  # fields are few; bounded
+                self._counts[field] = self._counts.get(field, 0) + 1
             log = self._due_log(key, sentence, now)
             answer = robot is not None and self._due_answer(robot, now)
             if robot and (robot in self._refused or len(self._refused) < MAX_TRACKED):

@@ -99,6 +99,7 @@ async def build_cloud(
                 fronts=dict(security.gateways) if security else None,
             )
             stack.callback(link.close)
+        metrics.observe_states_refused(link.state_refusals)
         routes = RobotRoutes(settings.set_aside_for)
         book = MissionBook(store)
         home = Home(

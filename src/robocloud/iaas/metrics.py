@@ -41,6 +41,8 @@ RefusedReserves = Callable[[], Mapping[str, int]]  # origin -> reservations refu
 # (party, message) -> messages the router's access control refused
 # (robocloud.federation.security.router_refusals)
 RouterRefusals = Callable[[], Mapping[tuple[str, str], int]]
+# field -> robot states refused for it, and "overtaken" (robocloud.fleet.link)
+StateRefusals = Callable[[], Mapping[str, int]]
 
 
 class IaasMetrics:
@@ -140,12 +142,16 @@ class IaasMetrics:
 
         self._gauges = _Gauges("", lambda: (), lambda: ())
         self.registry.register(self._gauges)
-        self._refusals = _Refusals(dict, dict, dict)
+        self._refusals = _Refusals(dict, dict, dict, dict)
         self.registry.register(self._refusals)
 
     def observe_refusals(self, replies: DroppedReplies, reserves: RefusedReserves) -> None:
         """Where the security counters read at each scrape: the overlay's, the home's."""
         self._refusals.replies, self._refusals.reserves = replies, reserves
+
+    def observe_states_refused(self, refused: StateRefusals) -> None:
+        """Where the robot states refused are read at each scrape (the robot link's)."""
+        self._refusals.states = refused
 
     def observe_router(self, refused: RouterRefusals) -> None:
         """Where the router's refusals are read at each scrape (with access control only)."""
@@ -231,11 +237,16 @@ class _Refusals:
     """Counters kept by the overlay and the home, read at scrape time."""
 
     def __init__(
-        self, replies: DroppedReplies, reserves: RefusedReserves, router: RouterRefusals
+        self,
+        replies: DroppedReplies,
+        reserves: RefusedReserves,
+        router: RouterRefusals,
+        states: StateRefusals,
     ) -> None:
         self.replies = replies
         self.reserves = reserves
         self.router = router
+        self.states = states
 
     def describe(self) -> list[Metric]:
         return []
@@ -272,3 +283,15 @@ class _Refusals:
         for (party, message), n in sorted(self.router().items()):
             router.add_metric([party, message], n)
         yield router
+        states = CounterMetricFamily(
+            "robocloud_states_refused",
+            "Robot states this IaaS refused (answered with a StateError), by the field that was "
+            "wrong (sent_at: outside the clock bound; id: another robot's key or gateway...), "
+            "and 'overtaken': held states that had claimed a sent_at ahead of their arrival and "
+            "a greater seq, overtaken by the robot's own (forged, or a restart with the clock "
+            "ahead).",
+            labels=["field"],
+        )
+        for name, n in sorted(self.states().items()):
+            states.add_metric([name], n)
+        yield states

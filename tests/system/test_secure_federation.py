@@ -202,6 +202,7 @@ def test_cloud_c_can_neither_take_nor_touch_cloud_as_loans(
 ) -> None:
     (a, b, _), certs = federation
     rid, robot = start_far_request(a, [100.0, 100.0])
+    before = b.router_refusals().get(("cloud-c", "query"), 0.0)
     reserve = Reservation(request_id=rid, robots=[robot])
     release = Release(request_id=rid, robots=[robot])
     go = Assign(request_id=rid, location=[0.0, 0.0], capabilities=["kicker"])
@@ -228,8 +229,19 @@ def test_cloud_c_can_neither_take_nor_touch_cloud_as_loans(
             assert done["ok"] is False and "cloud-c holds no loan" in done["error"], done
         [ack] = send(c, keys.command("cloud-b", "cloud-c", "dispatch"), dispatch)
         assert ack["ok"] is False and "not lent to request" in ack["error"]
+        c_zid = str(c.zid())
     finally:
         c.close()  # type: ignore[no-untyped-call]
+    # The six commands as cloud-a: each a refusal of cloud-b's router, logged and counted.
+    wait_until(
+        lambda: b.router_refusals().get(("cloud-c", "query"), 0.0) - before >= 6,
+        10,
+        "cloud-b to count cloud-c's commands as cloud-a",
+    )
+    said = [line for line in log_of(b).splitlines() if f"session {c_zid}" in line]
+    for name in ("reserve", "confirm", "release", "cancel", "dispatch", "loans"):
+        key = keys.command("cloud-b", "cloud-a", name)
+        assert any(f"refused a query on '{key}' from cloud-c" in line for line in said), name
     refusals = [line for line in log_of(b).splitlines() if "refused a" in line]
     for what in ("confirm", "release", "cancel", "dispatch"):
         assert any(
@@ -341,6 +353,71 @@ def test_a_robot_certificate_fabricates_no_cloud(federation: tuple[list[Cloud], 
     ):
         assert any(refused in line and "cloud-b-robots" in line for line in said), refused
     assert all("cloud-zzz" not in line for line in log_of(a).splitlines() if line not in said)
+
+
+def test_a_member_cloud_answers_for_no_other(federation: tuple[list[Cloud], Path]) -> None:
+    """The issue's second and third attacks with cloud-c's certificate at cloud-a's router:
+    answers to cloud-a's status question for cloud-b ("request over", which ended other
+    clouds' loans) and to its reserve and confirm commands. cloud-a's router refuses the
+    queryables, each refusal a line of its log and a count; cloud-a's request, served by
+    cloud-b's robot, goes on."""
+    (a, b, _), certs = federation
+    rid, robot = start_far_request(a, [1900.0, 100.0])
+    before = a.router_refusals().get(("cloud-c", "declare_queryable"), 0.0)
+    over = json.dumps({"requests": [{"request_id": rid, "known": False}]})
+    forged = json.dumps({"taken": [], "error": "forged: nothing to lend"})
+    c = session_as(a, certs, "cloud-c")
+    zid = str(c.zid())
+    answers = [
+        c.declare_queryable("robocloud/cloud-b/status", lambda q: q.reply(q.key_expr, over)),
+        c.declare_queryable("robocloud/*/from/cloud-a/*", lambda q: q.reply(q.key_expr, forged)),
+        c.declare_queryable(
+            keys.command("cloud-b", "cloud-a", "confirm"), lambda q: q.reply(q.key_expr, forged)
+        ),
+    ]
+    try:
+        wait_until(
+            lambda: a.router_refusals().get(("cloud-c", "declare_queryable"), 0.0) - before >= 3,
+            10,
+            "cloud-a to count cloud-c's queryables",
+        )
+        # Asked as cloud-a asks (its own certificate, every queryable), cloud-b's status
+        # and commands are answered by cloud-b's session alone, never by cloud-c's.
+        tool = session_as(a, certs, "cloud-a")
+        try:
+            for key in ("robocloud/cloud-b/status", keys.command("cloud-b", "cloud-a", "confirm")):
+                replies = tool.get(
+                    key,
+                    payload="{}",
+                    target=zenoh.QueryTarget.ALL,
+                    consolidation=zenoh.ConsolidationMode.NONE,
+                    timeout=2.0,
+                )
+                repliers = {str(r.replier_id.zid) for r in replies if r.replier_id is not None}
+                assert repliers and zid not in repliers, (key, repliers)
+        finally:
+            tool.close()  # type: ignore[no-untyped-call]
+        with a.client() as client:
+            now = client.get(f"/v1/requests/{rid}").json()
+        assert now["state"] == "underway", now
+        with b.client() as home:
+            lent = {r["id"]: r for r in home.get("/v1/robots").json()}[robot]
+        assert lent["status"] == "busy", lent
+    finally:
+        for each in answers:
+            each.undeclare()
+        c.close()  # type: ignore[no-untyped-call]
+    said = [line for line in log_of(a).splitlines() if f"session {zid}" in line]
+    for key in (
+        "robocloud/cloud-b/status",
+        "robocloud/*/from/cloud-a/*",
+        keys.command("cloud-b", "cloud-a", "confirm"),
+    ):
+        assert any(
+            f"refused a declare_queryable on '{key}' from cloud-c" in line for line in said
+        ), key
+    with a.client() as client:
+        assert client.post(f"/v1/requests/{rid}/cancel").json()["state"] == "canceled"
 
 
 def test_an_origin_that_disappears_loses_its_loans_and_learns_it_back(

@@ -420,6 +420,45 @@ def test_a_member_cloud_answers_for_no_other(federation: tuple[list[Cloud], Path
         assert client.post(f"/v1/requests/{rid}/cancel").json()["state"] == "canceled"
 
 
+def test_a_member_cloud_cannot_lease_a_whole_fleet(federation: tuple[list[Cloud], Path]) -> None:
+    """The issue's fifth attack with cloud-c's certificate at cloud-b's router (cloud-b
+    trusts cloud-c): every robot of cloud-b, busy and charging ones included, for a day.
+    Refused whole by the lending bounds, with a sentence; logged and counted."""
+    (_, b, _), certs = federation
+
+    def refused() -> float:
+        with b.client() as client:
+            text = client.get("/metrics").text
+        found = [
+            float(line.rsplit(" ", 1)[1])
+            for line in text.splitlines()
+            if line.startswith('robocloud_reservations_refused_total{origin="cloud-c"}')
+        ]
+        return found[0] if found else 0.0
+
+    before = refused()
+    with b.client() as client:
+        fleet = [r["id"] for r in client.get("/v1/robots").json()]
+    assert len(fleet) == ROBOTS
+    everything = Reservation(request_id="req-everything", robots=fleet, lease_seconds=86400)
+    c = session_as(b, certs, "cloud-c")
+    try:
+        [reply] = send(c, keys.command("cloud-b", "cloud-c", "reserve"), everything)
+        [loans] = send(c, keys.command("cloud-b", "cloud-c", "loans"), LoanQuery())
+    finally:
+        c.close()  # type: ignore[no-untyped-call]
+    assert loans["held"] == 0, loans  # cloud-b lent cloud-c nothing
+    assert reply["taken"] == fleet, reply
+    # Not idle or low on battery (the roster starts some busy and charging), or more than
+    # cloud-c's share of the fleet (half): whichever bound the home checks first.
+    assert (
+        "only idle robots with at least 20% of battery are lent" in reply["error"]
+        or "lends one cloud at most 50% of its robots (10)" in reply["error"]
+    ), reply
+    wait_until(lambda: refused() >= before + 1, 10, "cloud-b to count the refusal")
+    assert "refused a reserve from cloud-c" in log_of(b)
+
+
 def test_an_origin_that_disappears_loses_its_loans_and_learns_it_back(
     federation: tuple[list[Cloud], Path],
 ) -> None:

@@ -16,6 +16,7 @@ trace (robocloud.federation.security.router_refusals).
 
 from __future__ import annotations
 
+import json
 import threading
 import time
 from collections.abc import Iterator
@@ -243,3 +244,35 @@ def test_a_forged_state_hides_a_robot_two_seconds_and_is_told(
     log = (cloud.workdir / f"{CLOUD}-iaas.log").read_text()
     assert "refused a state on robocloud/cloud-a/robots/a-0002/state (field sent_at)" in log
     assert f"robot a-0002's state of seq {2**62} claimed to be sent at" in log
+
+
+def test_a_name_with_a_newline_forges_no_log_line(cloud_a: tuple[Cloud, Path]) -> None:
+    """The issue's seventh attack with the fleet's certificate: a capability name holding a
+    newline and a whole made-up log line, and a key holding one (refused by the router).
+    Refused with a sentence, counted; the IaaS's log holds no line of the attacker's."""
+    cloud, certs = cloud_a
+    fleet = session_as(cloud, certs, f"{CLOUD}-robots")
+    forged = "\n2026-12-02 04:30:00,000 cloud-a WARNING robocloud.iaas.home: cloud-b is back"
+    raw = State.model_validate_json(state("a-0002", 10**6, [10.0, 10.0])).model_dump(mode="json")
+    raw["capabilities"] = {f"kicker{forged}": KICKER["kicker"]}
+    errors: list[str] = []
+    told = fleet.declare_subscriber(
+        keys.error_key(CLOUD, "a-0002"), lambda sample: errors.append(sample.payload.to_string())
+    )
+    try:
+        fleet.put(keys.state_key(CLOUD, "a-0002"), json.dumps(raw))
+        fleet.put(f"robocloud/{CLOUD}/x{forged}", "{}")  # not a key the fleet may put on
+        wait_until(lambda: errors, 10, "a-0002 to be told why its state was refused")
+    finally:
+        told.undeclare()  # type: ignore[no-untyped-call]
+        fleet.close()  # type: ignore[no-untyped-call]
+    assert "capabilities" in json.loads(errors[0])["field"]
+    wait_until(
+        lambda: cloud.router_refusals().get((f"{CLOUD}-robots", "put"), 0) >= 1,
+        10,
+        "the router's refusal of the key to be counted",
+    )
+    lines = (cloud.workdir / f"{CLOUD}-iaas.log").read_text().splitlines()
+    assert not [line for line in lines if line.startswith("2026-12-02 04:30:00,000")]
+    escaped = [line for line in lines if "\\n2026-12-02 04:30:00,000" in line]
+    assert len(escaped) >= 2, escaped  # the state's refusal and the router's, on one line each

@@ -57,14 +57,23 @@ def test_the_robot_ids_file_is_one_id_a_line(tmp_path: Path) -> None:
         read_robot_ids(tmp_path / "missing.txt")
 
 
-def test_robot_ids_need_mutual_tls(tmp_path: Path) -> None:
+@pytest.mark.parametrize(
+    ("flag", "text", "options"),
+    [
+        ("--robot-ids", "b-7\n", {"robot_ids": ("b-7",)}),
+        ("--gateways", "gw-1 b-1\n", {"gateways": (("gw-1", ("b-1",)),)}),
+    ],
+)
+def test_own_certificates_need_mutual_tls(
+    tmp_path: Path, flag: str, text: str, options: dict[str, object]
+) -> None:
     with pytest.raises(InvalidInput, match="need mutual TLS"):
-        OverlaySecurity(robot_ids=("b-7",))
-    path = tmp_path / "ids.txt"
-    path.write_text("b-7\n")
+        OverlaySecurity(**options)  # type: ignore[arg-type]
+    path = tmp_path / "names.txt"
+    path.write_text(text)
     iaas = [sys.executable, "-m", "robocloud.cli.main", "iaas", "--cloud", "cloud-b"]
     done = subprocess.run(
-        [*iaas, "--robot-ids", str(path)],
+        [*iaas, flag, str(path)],
         capture_output=True,
         text=True,
         timeout=60,
@@ -129,18 +138,3 @@ def test_the_gateways_file_is_a_gateway_a_line_with_its_robots(tmp_path: Path) -
         path.write_text(text)
         with pytest.raises(InvalidInput, match=sentence):
             read_gateways(path)
-
-
-def test_gateways_need_mutual_tls(tmp_path: Path) -> None:
-    path = tmp_path / "gateways.txt"
-    path.write_text("gw-1 b-1\n")
-    iaas = [sys.executable, "-m", "robocloud.cli.main", "iaas", "--cloud", "cloud-b"]
-    done = subprocess.run(
-        [*iaas, "--gateways", str(path)],
-        capture_output=True,
-        text=True,
-        timeout=60,
-        stdin=subprocess.DEVNULL,
-    )
-    assert done.returncode == 2, done.stderr
-    assert "Traceback" not in done.stderr and "need mutual TLS" in done.stderr

@@ -19,18 +19,16 @@ from __future__ import annotations
 
 import json
 import threading
-import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
-import zenoh
 from processes import Cloud, wait_until
+from secure_clouds import listed, repliers, robot_state, secure_cloud, session_as
 
-from robocloud.federation.security import OverlaySecurity, make_certs
 from robocloud.federation.security.policy import gateway_name
-from robocloud.fleet import keys, open_client
+from robocloud.fleet import keys
 from robocloud.fleet.ingest import encode_batch
 from robocloud.fleet.messages import Ack, Assign, Cancel, State
 from robocloud.gateways.zenoh_side import ZenohFleet
@@ -38,63 +36,25 @@ from robocloud.gateways.zenoh_side import ZenohFleet
 pytestmark = pytest.mark.slow
 
 CLOUD = "cloud-a"
-KICKER = {"kicker": {"kind": "actuating", "time": 5.0, "cost": 1.0}}
 GW1, GW2 = gateway_name(CLOUD, "gw-1"), gateway_name(CLOUD, "gw-2")
 
 
 def state(robot: str, seq: int, position: list[float], battery: float = 90.0) -> State:
-    return State(
-        id=robot,
-        cloud=CLOUD,
-        kind="agv",
-        position=position,
-        speed=1.0,
-        battery=battery,
-        status="idle",
-        travel_cost_per_m=0.01,
-        capabilities=KICKER,  # type: ignore[arg-type]
-        seq=seq,
-        sent_at=time.time(),
-    )
+    return robot_state(CLOUD, robot, seq, position, battery)
 
 
 def batch(*states: State) -> bytes:
     return encode_batch([s.model_dump(mode="json") for s in states])
 
 
-def session_as(cloud: Cloud, certs: Path, name: str) -> zenoh.Session:
-    security = OverlaySecurity(
-        ca=certs / "ca.pem", cert=certs / f"{name}.pem", key=certs / f"{name}.key"
-    )
-    return open_client([cloud.zenoh], timeout=5.0, security=security)
-
-
 @pytest.fixture(scope="module")
 def cloud_a(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Cloud, Path]]:
     tmp_path = tmp_path_factory.mktemp("gateways")
-    certs = tmp_path / "certs"
-    make_certs(certs, [CLOUD, GW1, GW2])
     gateways = tmp_path / "gateways.txt"
     gateways.write_text("# cloud-a's gateways with a certificate of their own\n"
                         "gw-1 a-0001 a-0002\ngw-2 a-0003\n")  # fmt: skip
-    flags = [
-        *("--tls-ca", str(certs / "ca.pem")),
-        *("--tls-cert", str(certs / f"{CLOUD}.pem")),
-        *("--tls-key", str(certs / f"{CLOUD}.key")),
-        *("--trust", CLOUD, "--gateways", str(gateways)),
-        *("--offline-after", "120"),  # a state or two each: none turns offline meanwhile
-    ]
-    cloud = Cloud(CLOUD, tmp_path, f"sqlite:///{tmp_path / 'cloud-a.db'}", 0, 1.0, iaas_args=flags)
-    try:
-        cloud.start_iaas()
-        yield cloud, certs
-    finally:
-        cloud.stop()
-
-
-def listed(cloud: Cloud) -> dict[str, dict[str, Any]]:
-    with cloud.client() as client:
-        return {r["id"]: r for r in client.get("/v1/robots").json()}
+    with secure_cloud(tmp_path, CLOUD, [GW1, GW2], ["--gateways", str(gateways)]) as made:
+        yield made
 
 
 def test_a_gateway_certificate_speaks_for_its_robots_only(cloud_a: tuple[Cloud, Path]) -> None:
@@ -148,17 +108,10 @@ def test_a_gateway_certificate_speaks_for_its_robots_only(cloud_a: tuple[Cloud, 
             "gw-1's own a-0002 to be listed",
         )
 
+        go = Assign(request_id="req-probe", location=[0.0, 0.0], capabilities=["kicker"])
+
         def ask(robot: str) -> list[str]:
-            """Who answers a command for ``robot``, asked as the IaaS asks (every queryable)."""
-            go = Assign(request_id="req-probe", location=[0.0, 0.0], capabilities=["kicker"])
-            replies = tool.get(
-                keys.cmd_key(CLOUD, robot),
-                payload=go.model_dump_json(),
-                target=zenoh.QueryTarget.ALL,
-                consolidation=zenoh.ConsolidationMode.NONE,
-                timeout=2.0,
-            )
-            return [str(r.replier_id.zid) for r in replies if r.ok is not None and r.replier_id]
+            return repliers(tool, keys.cmd_key(CLOUD, robot), go.model_dump_json())
 
         wait_until(lambda: ask("a-0002"), 10, "gw-1 to answer its own robot's commands")
         assert ask("a-0003") == [str(honest.zid())]

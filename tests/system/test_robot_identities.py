@@ -21,44 +21,23 @@ import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
 
 import pytest
 import zenoh
 from processes import Cloud, wait_until
+from secure_clouds import KICKER, listed, repliers, robot_state, secure_cloud, session_as
 
-from robocloud.federation.security import OverlaySecurity, make_certs
 from robocloud.federation.security.policy import robot_name
-from robocloud.fleet import keys, open_client
+from robocloud.fleet import keys
 from robocloud.fleet.messages import Ack, State
 
 pytestmark = pytest.mark.slow
 
 CLOUD = "cloud-a"
-KICKER = {"kicker": {"kind": "actuating", "time": 5.0, "cost": 1.0}}
 
 
 def state(robot: str, seq: int, position: list[float], battery: float = 90.0) -> str:
-    return State(
-        id=robot,
-        cloud=CLOUD,
-        kind="tribot",
-        position=position,
-        speed=1.0,
-        battery=battery,
-        status="idle",
-        travel_cost_per_m=0.01,
-        capabilities=KICKER,  # type: ignore[arg-type]
-        seq=seq,
-        sent_at=time.time(),
-    ).model_dump_json()
-
-
-def session_as(cloud: Cloud, certs: Path, name: str) -> zenoh.Session:
-    security = OverlaySecurity(
-        ca=certs / "ca.pem", cert=certs / f"{name}.pem", key=certs / f"{name}.key"
-    )
-    return open_client([cloud.zenoh], timeout=5.0, security=security)
+    return robot_state(CLOUD, robot, seq, position, battery).model_dump_json()
 
 
 class Answerer:
@@ -80,32 +59,11 @@ class Answerer:
 @pytest.fixture(scope="module")
 def cloud_a(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Cloud, Path]]:
     tmp_path = tmp_path_factory.mktemp("identities")
-    certs = tmp_path / "certs"
-    make_certs(
-        certs,
-        [CLOUD, f"{CLOUD}-robots", robot_name(CLOUD, "a-0001"), robot_name(CLOUD, "a-0002")],
-    )
     ids = tmp_path / "robot-ids.txt"
     ids.write_text("# robots of cloud-a with a certificate of their own\na-0001\na-0002\n")
-    flags = [
-        *("--tls-ca", str(certs / "ca.pem")),
-        *("--tls-cert", str(certs / f"{CLOUD}.pem")),
-        *("--tls-key", str(certs / f"{CLOUD}.key")),
-        *("--trust", CLOUD, "--robot-ids", str(ids)),
-        # Each robot here sends a state or two: none turns offline while the test runs.
-        *("--offline-after", "120"),
-    ]
-    cloud = Cloud(CLOUD, tmp_path, f"sqlite:///{tmp_path / 'cloud-a.db'}", 0, 1.0, iaas_args=flags)
-    try:
-        cloud.start_iaas()
-        yield cloud, certs
-    finally:
-        cloud.stop()
-
-
-def listed(cloud: Cloud) -> dict[str, dict[str, Any]]:
-    with cloud.client() as client:
-        return {r["id"]: r for r in client.get("/v1/robots").json()}
+    names = [f"{CLOUD}-robots", robot_name(CLOUD, "a-0001"), robot_name(CLOUD, "a-0002")]
+    with secure_cloud(tmp_path, CLOUD, names, ["--robot-ids", str(ids)]) as made:
+        yield made
 
 
 def test_a_robot_certificate_speaks_for_its_robot_only(cloud_a: tuple[Cloud, Path]) -> None:
@@ -141,15 +99,7 @@ def test_a_robot_certificate_speaks_for_its_robot_only(cloud_a: tuple[Cloud, Pat
         )
 
         def ask(robot: str) -> list[str]:
-            """Who answers a command for ``robot``, asked as the IaaS asks (every queryable)."""
-            replies = tool.get(
-                keys.cmd_key(CLOUD, robot),
-                payload='{"type": "probe"}',
-                target=zenoh.QueryTarget.ALL,
-                consolidation=zenoh.ConsolidationMode.NONE,
-                timeout=2.0,
-            )
-            return [str(r.replier_id.zid) for r in replies if r.ok is not None and r.replier_id]
+            return repliers(tool, keys.cmd_key(CLOUD, robot), '{"type": "probe"}')
 
         wait_until(lambda: ask("a-0001"), 10, "a-0001 to answer its own commands")
         assert own_cmd.heard

@@ -26,11 +26,11 @@ from typing import Any
 import pytest
 import zenoh
 from processes import Cloud, follow, grabber_task, start_clouds, wait_until
+from secure_clouds import repliers, session_as, tls_flags
 
 from robocloud.federation import keys
 from robocloud.federation.messages import Dispatch, LoanQuery, Release, Reservation
 from robocloud.federation.security import OverlaySecurity, make_certs
-from robocloud.fleet import open_client
 from robocloud.fleet.messages import Assign
 
 pytestmark = pytest.mark.slow
@@ -51,17 +51,6 @@ ROBOTS = 20  # cloud-b's; some start busy or charging (the simulator's roster)
 # every grabber of cloud-b sent to (1000, 1000) is done in 4-5 s (857 robot seconds;
 # 17 s at 50), and a far kicker is on its way for 4 s or more.
 SPEEDUP = 200.0
-
-
-def tls_flags(certs: Path, name: str) -> list[str]:
-    return [
-        "--tls-ca",
-        str(certs / "ca.pem"),
-        "--tls-cert",
-        str(certs / f"{name}.pem"),
-        "--tls-key",
-        str(certs / f"{name}.key"),
-    ]
 
 
 @pytest.fixture(scope="module")
@@ -94,14 +83,6 @@ def federation(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[list[
     finally:
         for cloud in clouds:
             cloud.stop()
-
-
-def session_as(cloud: Cloud, certs: Path, name: str) -> zenoh.Session:
-    """A Zenoh client at ``cloud``'s router with the certificate of ``name`` (a cloud's tool)."""
-    security = OverlaySecurity(
-        ca=certs / "ca.pem", cert=certs / f"{name}.pem", key=certs / f"{name}.key"
-    )
-    return open_client([cloud.zenoh], timeout=5.0, security=security)
 
 
 def send(session: zenoh.Session, key: str, message: Any) -> list[dict[str, Any]]:
@@ -386,15 +367,8 @@ def test_a_member_cloud_answers_for_no_other(federation: tuple[list[Cloud], Path
         tool = session_as(a, certs, "cloud-a")
         try:
             for key in ("robocloud/cloud-b/status", keys.command("cloud-b", "cloud-a", "confirm")):
-                replies = tool.get(
-                    key,
-                    payload="{}",
-                    target=zenoh.QueryTarget.ALL,
-                    consolidation=zenoh.ConsolidationMode.NONE,
-                    timeout=2.0,
-                )
-                repliers = {str(r.replier_id.zid) for r in replies if r.replier_id is not None}
-                assert repliers and zid not in repliers, (key, repliers)
+                answered = repliers(tool, key, "{}")
+                assert answered and zid not in answered, (key, answered)
         finally:
             tool.close()  # type: ignore[no-untyped-call]
         with a.client() as client:

@@ -58,8 +58,15 @@ def state(i: int, x: float, protocol: str | None = "1.2") -> State:
 class World:
     """The parts of one cloud a mission reaches, in memory, with the test's clock."""
 
-    def __init__(self, robots: list[State], offline_after: float = 30.0) -> None:
+    def __init__(
+        self, robots: list[State], offline_after: float = 30.0, planning: float = 0.0
+    ) -> None:
         self.clock = Clock()
+
+        def plan(problem: Problem, time_limit: float) -> Plan:
+            self.clock.now += planning  # the planner's wall time
+            return construction(problem, time_limit)
+
         self._seen: dict[str, int] = {}
         self.link = MemoryRobotLink("cloud-a", robots, offline_after=1e9)
         self.routes = RobotRoutes(wall=self.clock)
@@ -72,7 +79,7 @@ class World:
         self.service = MissionService(
             "cloud-a", MissionBook(store), store, view, self.routes,
             Rules(offline_after=offline_after, overrun_min=5.0), blocking, self.clock,
-            plan=construction,
+            plan=plan,
         )
 
     async def begin(self, body: dict[str, Any]) -> MissionRunner:
@@ -242,6 +249,25 @@ def test_a_robot_of_protocol_1_1_is_sent_late_and_never_held() -> None:
         assert sent and not any(c.hold for c in sent)
         assert not [r for r, _ in world.sent(Start) if r == old.id]
         assert runner.record.state == "completed", runner.record.history
+
+    asyncio.run(scenario())
+
+
+def test_a_plans_time_0_is_when_it_was_made_not_when_planning_began() -> None:
+    """A plan that took 30 s to make starts then: its 1.1 robot is not sent 30 s late, and
+    the plan's times (the page's Gantt chart) are not 30 s ahead of the robots."""
+
+    async def scenario() -> None:
+        world = World([state(0, 10.0), state(1, -10.0), state(2, 30.0, protocol=None)],
+                      planning=30.0)  # fmt: skip
+        began = world.clock()
+        runner = await world.begin(TWO_FIRES)
+        record = runner.record
+        assert record.started_at == began + 30.0, record.started_at - began
+        f1 = next(run for run in record.tasks.values() if run.id == "f1")
+        assert f1.start > 0.0  # its members still have to drive there
+        # Protocol 1.2 robots get their assign (with hold) at once, not before their plan.
+        assert {r for r, c in world.sent(Assign) if c.hold} == set(f1.robots) - {"a-0002"}
 
     asyncio.run(scenario())
 

@@ -216,9 +216,12 @@ class MissionRunner:
                 f"the robots chosen were taken by others {ATTEMPTS} times in a row.",
             )
             return
-        if not replan:
-            record.started_at = now
         now = ports.wall()
+        if not replan:
+            # Time 0 of the plan: now, once it is made and its robots held (idle where
+            # the gather found them); not when planning began, time_limit ago at most,
+            # which would have put every robot behind its plan from the start.
+            record.started_at = now
         holds = {r: self._holds(r) for r in chosen - set(ours)}
         for member in record.robots.values():
             del member.legs[member.sent :]  # the legs not sent are this plan's now

@@ -288,6 +288,29 @@ class DeafRobot(example.Robot):  # type: ignore[misc,name-defined]
         return ok, error
 
 
+class UnheldRobot(example.Robot):  # type: ignore[misc,name-defined]
+    """Says protocol 1.2 in its states but ignores an assign's hold: it works at once."""
+
+    def state(self) -> dict[str, Any]:
+        state: dict[str, Any] = super().state()
+        state["protocol"] = "1.2"
+        return state
+
+
+# The hold rule waits for "waiting" as long as the watchdog would: 1 s of travel + 2 s.
+@check_first(lambda: run_with_robot(UnheldRobot, overrun_min=2.0))
+def test_a_robot_of_1_2_that_does_not_hold_fails_the_hold_rule(
+    checked: dict[str, Result],
+) -> None:
+    results = checked
+    held = results["hold"]
+    assert not held.passed
+    assert "was sent with hold, but the robot did not report phase waiting" in held.sentence
+    assert 'docs/protocol.md, "Missions (protocol 1.2)"' in held.sentence
+    failed = {rule for rule, result in results.items() if not result.passed}
+    assert failed == {"hold"}, failed  # every other rule is the example robot's: passed
+
+
 @check_first(lambda: run_with_robot(LateRobot, ack_timeout=1.0))
 def test_a_robot_that_acks_late_fails_the_late_ack_rule(checked: dict[str, Result]) -> None:
     results = checked

@@ -50,4 +50,4 @@ def test_robot_check_passes_against_the_gateway_and_a_stand_in(tmp_path: Path) -
                 process.terminate()
             process.wait(10)
     assert check.returncode == 0, out + (tmp_path / "gateway.log").read_text()
-    assert out.splitlines()[-1] == "17 passed, 0 failed"
+    assert out.splitlines()[-1] == "18 passed, 0 failed"

@@ -12,7 +12,7 @@ the rules (``rules.py``)::
     join, state-schema, state-rate, battery-percent   (watched over the whole run)
     idle -> assign -> repeat-assign -> refuse-busy -> done -> overrun -> progress
          -> last-task -> cancel-after-finish
-    cancel -> malformed-command -> late-ack -> reconnect
+    cancel -> malformed-command -> late-ack -> reconnect -> hold
 
 Each scenario after ``idle`` starts from a clean robot: a task left over is
 cancelled and the robot must report idle within ``Timing.clean_within``, so one
@@ -53,6 +53,7 @@ from robocloud.conformance.rules import (
     idle,
     location,
     malformed,
+    phase_of,
     tolerance,
     where,
     working,
@@ -61,7 +62,7 @@ from robocloud.conformance.rules import (
 )
 from robocloud.conformance.transport import Heard, Sent, Transport
 from robocloud.fleet import keys
-from robocloud.fleet.messages import Assign, Cancel, State
+from robocloud.fleet.messages import Assign, Cancel, Start, State
 
 log = logging.getLogger(__name__)
 T = TypeVar("T")
@@ -141,6 +142,7 @@ class RobotCheck:
         self._rule("malformed-command", lambda: self._malformed(capability), clean=True)
         self._rule("late-ack", lambda: self._cancel_at_once(capability), clean=True)
         self._rule("reconnect", lambda: self._reconnect(capability), clean=True)
+        self._rule("hold", lambda: self._hold(capability), clean=True)
 
     def _rule(self, rule: str, check: Callable[[], T], clean: bool = False) -> T | None:
         """Run one rule's check: its value when it passed, None when it failed."""
@@ -177,13 +179,13 @@ class RobotCheck:
 
     # -- commands -------------------------------------------------------------------
 
-    def _command(self, command: Assign | Cancel) -> Sent:
+    def _command(self, command: Assign | Cancel | Start) -> Sent:
         try:
             return self.io.command(command)
         except RuntimeError as error:
             raise Failed(f"{error}.") from None
 
-    def _ask(self, command: Assign | Cancel) -> Sent:
+    def _ask(self, command: Assign | Cancel | Start) -> Sent:
         """Send ``command`` and wait for its ack as the IaaS does.
 
         An ack later than the deadline counts as a refusal: the kit sends a
@@ -473,6 +475,83 @@ class RobotCheck:
                 "request the robot no longer has is harmless (ok)."
             )
         return "acknowledged, stopped and idle; a second cancel was ok too."
+
+    def _hold(self, capability: str) -> str:
+        """Protocol 1.2: driven to the place, held there (phase waiting) until its start."""
+        state = self._idle_state()
+        if not state.holds:
+            return (
+                "not for this robot: its state says no protocol 1.2, so an IaaS never sends "
+                "it hold or start."
+            )
+        rid = self._request()
+        target = location(state, state.speed * self.timing.travel)
+        go = Assign(request_id=rid, location=target, capabilities=[capability], hold=True)
+        sent = self._ask(go)
+        assert sent.ack is not None
+        if not sent.ack.ok:
+            raise Failed(f"the robot refused {sent.what} with hold: {sent.ack.error}")
+        self._reported(rid)
+        travel = self._allowed(self.timing.travel)
+        there = self.io.wait_state(
+            lambda s: phase_of(s, rid) == "waiting", travel, sent.at - self.io.start
+        )
+        if there is None or there.state is None:
+            raise Failed(
+                f"{rid} was sent with hold, but the robot did not report phase waiting within "
+                f"{travel:g} s (it reported {describe(self.io.latest())}); a robot of protocol "
+                "1.2 drives to the location, then reports waiting until its start."
+            )
+        off = math.dist(there.state.position, target)
+        if off > AT_LOCATION:
+            raise Failed(
+                f"the robot reported waiting for {rid} {off:.1f} m from the task's location "
+                f"(at most {AT_LOCATION:g} m): it waits at the place, not on the way."
+            )
+        time.sleep(self.timing.watch)
+        held = there.state.task.progress if there.state.task is not None else 0.0
+        for later in self.io.states(there.at):
+            assert later.state is not None
+            task = later.state.task
+            if phase_of(later.state, rid) != "waiting" or (task and task.progress > held + 1e-9):
+                raise Failed(
+                    f"the robot was held at {rid}'s location but reported "
+                    f"{describe(later.state)} before any start; a held task waits, its "
+                    "progress still, until its start."
+                )
+        other = self._ask(Start(request_id=self._request()))
+        assert other.ack is not None
+        if other.ack.ok:
+            raise Failed(
+                f"the robot acknowledged {other.what} ok, a request it does not hold; a start "
+                "for another request, or with no task, is refused with a sentence."
+            )
+        start = self._ask(Start(request_id=rid))
+        assert start.ack is not None
+        if not start.ack.ok:
+            raise Failed(f"the robot refused the start of {rid}, which it held: {start.ack.error}")
+        told = start.at - self.io.start
+        working = self.io.wait_state(
+            lambda s: phase_of(s, rid) in ("work", "done"), self.timing.report_within, told
+        )
+        if working is None:
+            raise Failed(
+                f"the robot acknowledged the start of {rid} but no state showed it working "
+                f"within {self.timing.report_within:g} s."
+            )
+        work = state.capabilities[capability].time
+        end = self.io.wait_state(lambda s: ended(s, rid), self._allowed(work), told)
+        if end is None or end.state is None or finished_phase(end.state, rid) != "done":
+            raise Failed(
+                f"after its start {rid} did not end done within {self._allowed(work):g} s "
+                f"(the work takes about {work:g} s); the robot reported "
+                f"{describe(self.io.latest())}."
+            )
+        return (
+            f"waited at the location for its start ({self.timing.watch:g} s watched), refused "
+            f"another request's start, worked on its own and was done {end.at - told:.1f} s "
+            "later."
+        )
 
     def _reported(self, rid: str) -> None:
         if self.io.wait_state(lambda s: working_on(s, rid), self.timing.report_within, 0.0) is None:

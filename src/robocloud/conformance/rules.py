@@ -39,6 +39,7 @@ COMMANDS = "Commands and acks"
 TIMING = "Timing"
 RECONNECT = "Reconciliation and reconnection"
 UNITS = "Units and frame"
+MISSIONS = "Missions (protocol 1.2)"
 
 RULES: dict[str, Rule] = {
     "join": Rule("the robot publishes its state on its key", "Keys"),
@@ -74,9 +75,14 @@ RULES: dict[str, Rule] = {
     "reconnect": Rule(
         "after an outage the robot reports its task again and obeys the cancel", RECONNECT
     ),
+    "hold": Rule(
+        "protocol 1.2: an assign with hold is driven to and waited at, worked on its start "
+        "only; a start for another request is refused",
+        MISSIONS,
+    ),
 }
-WORKING = frozenset({"travel", "work"})
-PHASE_ORDER = {"travel": 0, "work": 1, "done": 2, "failed": 2}
+WORKING = frozenset({"travel", "waiting", "work"})
+PHASE_ORDER = {"travel": 0, "waiting": 1, "work": 2, "done": 3, "failed": 3}
 RATE_SLACK = 0.3  # seconds of jitter tolerated over "at least once a second"
 LATE_GRACE = 3.0  # seconds the kit still listens for an ack past the deadline
 RECONNECT_TRAVEL = 30.0  # seconds of travel of the task that spans the outage
@@ -249,6 +255,14 @@ def idle(state: State) -> bool:
 def finished_phase(state: State, rid: str) -> str | None:
     for task in (state.task, state.last_task):
         if task is not None and task.request_id == rid and task.phase in FINISHED_PHASES:
+            return task.phase
+    return None
+
+
+def phase_of(state: State, rid: str) -> str | None:
+    """The phase the robot reports for ``rid``: its task's, or its last task's once over."""
+    for task in (state.task, state.last_task):
+        if task is not None and task.request_id == rid:
             return task.phase
     return None
 

@@ -23,7 +23,7 @@ import zenoh
 
 from robocloud.conformance.rules import read_ack, read_state
 from robocloud.fleet import keys
-from robocloud.fleet.messages import Ack, Assign, Cancel, State
+from robocloud.fleet.messages import Ack, Assign, Cancel, Start, State
 from robocloud.fleet.state_errors import StateErrors
 from robocloud.fleet.zenoh_session import open_client, open_router
 
@@ -49,7 +49,7 @@ class Sent:
     replies: int = 0
 
 
-def what_of(command: Assign | Cancel) -> str:
+def what_of(command: Assign | Cancel | Start) -> str:
     return f"the {command.type} of {command.request_id}"
 
 
@@ -110,7 +110,7 @@ class Transport:
 
     # -- commands ---------------------------------------------------------------------
 
-    def command(self, command: Assign | Cancel) -> Sent:
+    def command(self, command: Assign | Cancel | Start) -> Sent:
         """Send ``command``; the Sent is answered in the background (``answered``)."""
         return self.send(command.model_dump_json().encode(), what_of(command), command.request_id)
 

@@ -217,9 +217,6 @@ class TraceReader:
             key = debug["key"] if debug else key
             self.on_refusal(Refusal(self._parties.get(zid, "unknown"), zid, kind, key))
 
-    def __len__(self) -> int:  # for tests: threads followed
-        return len(self._threads)
-
 
 class RouterRefusals:
     """The refusals of one router: counted by (party, message), and logged."""

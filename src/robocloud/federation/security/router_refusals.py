@@ -279,6 +279,12 @@ def watch(cloud: str, acl: Mapping[str, Any]) -> RouterRefusals:
     try:
         # The trace of the access control only: nothing else of Zenoh's.
         zenoh.init_log_from_env_or(f"off,{ACL_TARGET}=trace")
+    except Exception as error:  # whatever Zenoh says: the router still enforces its rules
+        logger.warning(
+            "the router's refusals will not be logged or counted: Zenoh's trace could not be "
+            "turned on (%s)",
+            error,
+        )
     finally:
         for name, value in saved.items():
             if value is not None:

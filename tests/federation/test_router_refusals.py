@@ -5,8 +5,9 @@ TLS in a child process (``watch`` takes the process's standard output), and
 a client holding cloud-a's fleet certificate: the refusals it counts are
 exactly the messages the access control refused, whatever Zenoh prints
 around them (its decisions for each subject, its cache of a declared key,
-the decisions of allowed messages), and a key holding a newline and a
-made-up trace line forges nothing.
+the decisions of allowed messages), a key holding a newline and a made-up
+trace line forges nothing, and one holding the words of an allowed verdict
+hides nothing.
 """
 
 from __future__ import annotations
@@ -54,6 +55,7 @@ for _ in range(3):
 for _ in range(4):
     fleet.put("robocloud/cloud-b/robots/b-1/state", "{}")  # another cloud's robot
 fleet.put(sys.argv[3], "{}")  # a key with a newline and a made-up trace line
+fleet.put("robocloud/cloud-b/x is authorized to Put (ingress) on y", "{}")  # words of a verdict
 token = fleet.liveliness().declare_token("robocloud/federation/clouds/cloud-zzz/1")
 queryable = fleet.declare_queryable("robocloud/cloud-zzz/*", lambda query: None)
 mine = fleet.declare_publisher("robocloud/cloud-a/robots/a-2/state")  # a declared key
@@ -108,14 +110,15 @@ def test_a_real_routers_refusals_are_counted_exactly(certs: Path) -> None:
     assert lines[0] == "python's own output" and len(lines) == 2, done.stdout
     result = json.loads(lines[1])
     assert result["counts"] == {
-        "cloud-a-robots put": 7,  # 4 of b-1, the forged key's, 2 through b-2's publisher
+        # 4 of b-1, the forged key's, the verdict's words, 2 through b-2's publisher
+        "cloud-a-robots put": 8,
         "cloud-a-robots liveliness_token": 1,
         "cloud-a-robots declare_queryable": 1,
     }
     assert "robocloud/cloud-a/robots/a-2/state" in result["heard"]
     assert not [key for key in result["heard"] if "cloud-b" in key]
     said = [line for line in done.stderr.splitlines() if "router refused" in line]
-    assert len(said) == 9 and "from cloud-zz " not in done.stderr
+    assert len(said) == 10 and "from cloud-zz " not in done.stderr
     # The forged key is logged whole, its newline escaped, in the line of its refusal.
     [forged] = [line for line in said if "made-up" in line]
     assert "robocloud/cloud-b/x\\n" in forged and "from cloud-a-robots" in forged

@@ -98,6 +98,12 @@ _NAMED = {
     "cert_common_names": re.compile(r"CertCommonName\(([^)]*)\)"),
     "usernames": re.compile(r"Username\(([^)]*)\)"),
 }
+# The raw pieces of an allowed decision's line, for ``TraceReader._allowed``.
+_ALLOWED = " is authorized to "
+_REFUSED = " is unauthorized to "
+_ACL_MARK = f"{ACL_TARGET}\x1b[0m"
+_AFTER_LEVEL = "TRACE\x1b[0m "
+_BEFORE_TARGET = " \x1b[2mzenoh::"
 # Where a line of Zenoh's own starts (the dim timestamp): nothing Zenoh prints of a
 # message can hold a raw ESC, it escapes it.
 _OWN_LINE = b"\x1b[2m"
@@ -173,6 +179,8 @@ class TraceReader:
 
     def line(self, text: str) -> bool:
         """Read one whole line of the trace (colours in); whether it was the access control's."""
+        if self._allowed(text):
+            return True
         found = _LINE.match(_ANSI.sub("", text, count=8))
         if found is None or found["target"] != ACL_TARGET:
             return False
@@ -209,6 +217,30 @@ class TraceReader:
                 state.caching = None
             return True
         self._decided(zid, kind, flow, decision["key"], refused)
+        return True
+
+    def _allowed(self, text: str) -> bool:
+        """The common line, an allowed message, read without the regular expressions.
+
+        Most lines are: every message the router lets through writes one. Its
+        only effect is to end its thread's group; a thread in a block of cached
+        decisions, or a line of another kind, is left to ``line``. The verdict
+        is the first one in the line: a key (after it) may hold the words.
+        """
+        allowed = text.find(_ALLOWED)
+        if allowed < 0:
+            return False
+        refused = text.find(_REFUSED)
+        if 0 <= refused < allowed or _ACL_MARK not in text:
+            return False
+        _, sep, rest = text.partition(_AFTER_LEVEL)
+        thread, sep2, _ = rest.partition(_BEFORE_TARGET)
+        if not sep or not sep2:
+            return False
+        state = self._threads.get(thread)
+        if state is None or state.caching is not None:
+            return False
+        state.group = None
         return True
 
     def _decided(self, zid: str, kind: str, flow: str, key: str, refused: bool) -> None:

@@ -31,8 +31,8 @@ def add_nxt_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--gateway-name",
         metavar="NAME",
-        help="speak for the bricks as a fleet gateway named NAME: one command queryable for "
-        "all and their states on robocloud/<cloud>/fleets/NAME/states (default: the keys "
+        help="speak for the bricks as a fleet gateway named NAME: a command queryable per "
+        "brick and their states on robocloud/<cloud>/fleets/NAME/states (default: the keys "
         "of a robot for each brick)",
     )
 

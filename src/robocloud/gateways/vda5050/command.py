@@ -50,8 +50,8 @@ def add_vda5050_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--gateway-name",
         metavar="NAME",
-        help="speak for the AGVs as a fleet gateway named NAME: one command queryable for "
-        "all and their states on robocloud/<cloud>/fleets/NAME/states (default: the keys "
+        help="speak for the AGVs as a fleet gateway named NAME: a command queryable per "
+        "AGV and their states on robocloud/<cloud>/fleets/NAME/states (default: the keys "
         "of a robot for each AGV)",
     )
     defaults = Timing()

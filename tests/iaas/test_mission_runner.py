@@ -272,6 +272,34 @@ def test_a_plans_time_0_is_when_it_was_made_not_when_planning_began() -> None:
     asyncio.run(scenario())
 
 
+def test_a_task_with_a_duration_keeps_its_members_that_long() -> None:
+    """docs/model.md: members stay until start + duration, even when their capabilities'
+    work (10 s of grabber here) is done sooner; then they go on to the next task."""
+
+    async def scenario() -> None:
+        world = World([state(0, 10.0), state(1, -10.0), state(2, 30.0)])
+        body = {**TWO_FIRES, "tasks": [
+            {"id": "f1", "location": [0, 10], "actuating": {"grabber": 2}, "duration": 60.0},
+            {"id": "f2", "location": [30, 10], "actuating": {"grabber": 1}},
+        ]}  # fmt: skip
+        runner = await world.begin(body)
+        record = runner.record
+        f1 = next(run for run in record.tasks.values() if run.id == "f1")
+        f2 = next(run for run in record.tasks.values() if run.id == "f2")
+        await world.run(runner, f1.start + 30.0)  # there, 10 s of work done, 20 s more
+        assert f1.state == "work" and f1.done_by == set(f1.robots), (f1.state, f1.done_by)
+        # Nobody of f1 has been sent on: f2's assigns wait for f1's end.
+        assert not [r for r, c in world.sent(Assign) if r in f1.robots and f2.wire(record.id)
+                    == c.request_id]  # fmt: skip
+        await world.run(runner, 40.0)  # past f1's 60 s
+        assert f1.state == "done", record.history
+        await world.run(runner, 120.0)
+        assert record.state == "completed", record.history
+        assert f2.start >= f1.start + 60.0 - 1e-6  # the plan had them stay, and they did
+
+    asyncio.run(scenario())
+
+
 def test_robots_another_holds_are_not_taken() -> None:
     async def scenario() -> None:
         world = World([state(0, 10.0), state(1, 40.0), state(2, 60.0)])

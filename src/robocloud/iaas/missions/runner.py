@@ -96,6 +96,10 @@ class MissionRunner:
         self.ports = ports
         self._turn = asyncio.Lock()
         self._failed: set[str] = set()  # robots that failed this mission: never planned again
+        # Task id -> its own duration (robot seconds), for the tasks that have one.
+        self._durations = {
+            t.id: t.duration for t in record.mission.tasks if t.duration is not None
+        }
         self.ended = asyncio.Event()
 
     @property
@@ -289,8 +293,10 @@ class MissionRunner:
             return
         current = member.current
         run = self.record.tasks[current.task] if current is not None else None
-        if run is not None and run.state not in OVER and member.id not in run.done_by:
-            return  # still on it
+        if run is not None and run.state not in OVER and (
+            member.id not in run.done_by or self._stays(run)
+        ):
+            return  # still on it, or done with its part and staying for the task's duration
         leg = member.next_leg
         if leg is None:
             await self._release(member, "its last task is done")
@@ -443,7 +449,7 @@ class MissionRunner:
             if r not in run.done_by and record.robots.get(r) is not None
             and record.robots[r].state != "failed"
         ]
-        if left:
+        if left or self._stays(run):
             return
         run.state, run.progress = "done", 1.0
         record.note(self.ports.wall(), f"task {run.id} done")
@@ -455,9 +461,32 @@ class MissionRunner:
             if other.state == "waiting":
                 await self._maybe_start(other)
 
+    def _stays(self, run: TaskRun) -> bool:
+        """Whether a task with a duration of its own still keeps its members at its place.
+
+        docs/model.md: every member stays until ``end_k = start_k + duration``,
+        even when its capabilities' work is shorter and it reports done sooner.
+        """
+        duration = self._durations.get(run.id)
+        if duration is None or run.started_wall is None:
+            return False
+        elapsed = (self.ports.wall() - run.started_wall) * self.ports.rules.time_scale
+        return elapsed < duration
+
     async def _on_tick(self) -> None:
         record, ports, rules = self.record, self.ports, self.ports.rules
         now = ports.wall()
+        for run in list(record.tasks.values()):
+            if run.state == "work" and run.done_by and not self._stays(run):
+                # A task that kept its members for its duration: over once it has passed.
+                await self._task_maybe_done(run)
+                if is_final(record.state):
+                    return
+                if run.state == "done":
+                    for robot_id in run.robots:
+                        member = record.robots.get(robot_id)
+                        if member is not None:
+                            await self._advance(member)
         for member in list(record.robots.values()):
             if member.state == "assigned":
                 await self._advance(member)

@@ -59,7 +59,11 @@ class World:
     """The parts of one cloud a mission reaches, in memory, with the test's clock."""
 
     def __init__(
-        self, robots: list[State], offline_after: float = 30.0, planning: float = 0.0
+        self,
+        robots: list[State],
+        offline_after: float = 30.0,
+        planning: float = 0.0,
+        stall_after: float = 30.0,
     ) -> None:
         self.clock = Clock()
 
@@ -78,7 +82,8 @@ class World:
 
         self.service = MissionService(
             "cloud-a", MissionBook(store), store, view, self.routes,
-            Rules(offline_after=offline_after, overrun_min=5.0), blocking, self.clock,
+            Rules(offline_after=offline_after, overrun_min=5.0, stall_after=stall_after),
+            blocking, self.clock,
             plan=plan,
         )
 
@@ -206,6 +211,31 @@ def test_a_silent_robot_fails_by_the_watchdog() -> None:
         assert any(f"robot {victim} failed: it has been silent" in n for n in notes), notes
         # Two robots are left for a task that needs two: it is re-planned on them.
         assert runner.record.state in ("underway", "completed"), notes
+
+    asyncio.run(scenario())
+
+
+def test_a_robot_stuck_on_its_way_fails_by_the_stall_rule() -> None:
+    """lifecycle.Rules.failure, the requests' rule: a robot that goes on reporting but
+    makes no progress for stall_after has failed, long before it is past its arrival."""
+
+    async def scenario() -> None:
+        world = World([state(0, 10.0), state(1, -10.0), state(2, 30.0)], stall_after=3.0)
+        body = {**TWO_FIRES, "tasks": [
+            {"id": "f1", "location": [0, 60], "actuating": {"grabber": 2}},
+            {"id": "f2", "location": [30, 10], "actuating": {"grabber": 1}},
+        ]}  # fmt: skip
+        runner = await world.begin(body)
+        record = runner.record
+        f1 = next(run for run in record.tasks.values() if run.id == "f1")
+        stuck = sorted(f1.robots)[0]
+        await world.run(runner, 2.0)
+        world.link.stick(stuck)
+        await world.run(runner, 6.0)  # 60 m away at 1 m/s: its arrival is due in a minute
+        member = record.robots[stuck]
+        assert member.state == "failed", record.history
+        notes = [h["note"] for h in record.history if stuck in h["note"]]
+        assert any("reported no progress for 4 s (stalled)" in n for n in notes), notes
 
     asyncio.run(scenario())
 

@@ -46,6 +46,7 @@ class MemoryRobotLink:
         self._latest = LatestStates(cloud, offline_after, clock)
         self._jobs: dict[str, _Job] = {}
         self._silent: set[str] = set()
+        self._stuck: set[str] = set()  # robots that report but do not move on
         self._seq = 0
         self.commands: list[tuple[str, Assign | Cancel | Start]] = []
         self.refusals: dict[str, str] = {}  # robot -> why its states are refused (set by tests)
@@ -166,6 +167,9 @@ class MemoryRobotLink:
                 if state.task is not None:
                     self._publish(state, task=None)
                 continue
+            if robot_id in self._stuck:
+                self._publish(state)  # it reports, its task where it was
+                continue
             job.elapsed += seconds
             if job.held and job.elapsed >= job.travel:
                 job.elapsed = job.travel  # there, waiting for its start
@@ -208,8 +212,14 @@ class MemoryRobotLink:
         self._state(robot_id)
         self._silent.add(robot_id)
 
+    def stick(self, robot_id: str) -> None:
+        """The robot goes on reporting, but its task stops progressing (stuck on its way)."""
+        self._state(robot_id)
+        self._stuck.add(robot_id)
+
     def recover(self, robot_id: str) -> None:
         self._silent.discard(robot_id)
+        self._stuck.discard(robot_id)
         self._publish(self._state(robot_id))
 
     # Internals -------------------------------------------------------------

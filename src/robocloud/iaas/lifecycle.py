@@ -113,6 +113,36 @@ class Rules:
         """The wall time past which something started at ``start_wall`` has overrun."""
         return start_wall + expected / self.time_scale + self.tolerance(expected)
 
+    def failure(
+        self,
+        silent: float,
+        started_wall: float | None,
+        expected: float,
+        now_wall: float,
+        still: float | None,
+        what: str = "finish",
+    ) -> tuple[Cause, str] | None:
+        """The watchdog's rule for one robot, of a request or a mission: whether it failed.
+
+        ``silent``: seconds since it was last heard; ``started_wall``: when it
+        began what it should end within ``expected`` robot seconds (None: not
+        begun); ``still``: seconds since its progress last grew while it
+        travels or works (None: neither). Silent past ``offline_after``, then
+        past ``due``, then no progress for ``stall_after``.
+        """
+        if silent > self.offline_after:
+            return "silent", f"it has been silent for {silent:.0f} s"
+        if started_wall is not None:
+            due = self.due(started_wall, expected)
+            if now_wall > due:
+                return "overrun", (
+                    f"it is past its expected {what} ({expected:.0f} s robot time, plus "
+                    f"{self.tolerance(expected):.0f} s of tolerance) by {now_wall - due:.0f} s"
+                )
+        if still is not None and still > self.stall_after:
+            return "stalled", f"it reported no progress for {still:.0f} s (stalled)"
+        return None
+
 
 @dataclass(frozen=True)
 class Member:
@@ -691,22 +721,17 @@ def _on_tick(life: Life, event: Tick, now: Now) -> Step:
 def _watchdog(life: Life, member: Member, now: Now) -> tuple[Cause, str] | None:
     """Whether a robot of the coalition has failed by the clock: silent, overrun, stalled."""
     rules = life.rules
-    silent = now.mono - member.heard_at
-    if silent > rules.offline_after:
-        return "silent", f"it has been silent for {silent:.0f} s"
+    started = None
     if life.dispatched_at is not None:
-        start = life.dispatched_at + member.offset / rules.time_scale
-        due = rules.due(start, member.time)
-        if now.wall > due:
-            return "overrun", (
-                f"it is past its expected finish ({member.time:.0f} s robot time, plus "
-                f"{rules.tolerance(member.time):.0f} s of tolerance) by "
-                f"{now.wall - due:.0f} s"
-            )
-    still = now.mono - member.progressed_at
-    if member.confirmed and member.phase in ("travel", "work") and still > rules.stall_after:
-        return "stalled", f"it reported no progress for {still:.0f} s (stalled)"
-    return None
+        started = life.dispatched_at + member.offset / rules.time_scale
+    moving = member.confirmed and member.phase in ("travel", "work")
+    return rules.failure(
+        now.mono - member.heard_at,
+        started,
+        member.time,
+        now.wall,
+        now.mono - member.progressed_at if moving else None,
+    )
 
 
 def _on_cancel(life: Life, event: CancelAsked, now: Now) -> Step:

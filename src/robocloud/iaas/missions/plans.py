@@ -79,6 +79,10 @@ class RobotRun:
     # (State.is_newer_than) is from before it (a re-planned task's ids repeat).
     sent_after: State | None = None
     heard_wall: float = 0.0  # its latest report
+    # Its current task's progress and when it last grew (or its phase changed): the
+    # watchdog's stall rule (lifecycle.Rules.failure).
+    progress: float = 0.0
+    progressed_wall: float = 0.0
     joined_wall: float = 0.0  # when the mission took it
     position: tuple[float, float] = (0.0, 0.0)
 

@@ -338,7 +338,8 @@ class MissionRunner:
         run = record.tasks[leg.task]
         wire = run.wire(record.id)
         member.sent += 1
-        member.sent_wall = ports.wall()
+        member.sent_wall = member.progressed_wall = ports.wall()
+        member.progress = 0.0
         heard = ports.state_of(member.id)
         member.sent_after = heard
         member.state = "travel"
@@ -383,6 +384,9 @@ class MissionRunner:
             return
         if member.id in run.done_by:
             return
+        phase = {"travel": "travel", "waiting": "waiting", "work": "working"}.get(task.phase)
+        if task.progress > member.progress + 1e-9 or (phase and phase != member.state):
+            member.progress, member.progressed_wall = task.progress, now
         if task.phase == "travel":
             member.state = "travel"
         elif task.phase == "waiting":
@@ -511,26 +515,23 @@ class MissionRunner:
     def _late(self, member: RobotRun, run: TaskRun, now: float) -> str | None:
         """Why the watchdog counts the robot failed now, or None (lifecycle's rule)."""
         rules = self.ports.rules
-        heard = max(member.heard_wall, member.sent_wall or 0.0)
-        if now - heard > rules.offline_after:
-            return f"it has been silent for {now - heard:.0f} s"
+        silent = now - max(member.heard_wall, member.sent_wall or 0.0)
+        still = now - member.progressed_wall if member.state in ("travel", "working") else None
         if member.state == "travel" and member.sent_wall is not None:
             leg = member.current
             assert leg is not None
             expected = max(leg.arrive - leg.depart, 0.0)
-            if now > rules.due(member.sent_wall, expected):
-                return (
-                    f"it is past its expected arrival at task {run.id} ({expected:.0f} s "
-                    f"robot time, plus {rules.tolerance(expected):.0f} s of tolerance)"
-                )
-        if member.state == "working" and run.started_wall is not None:
+            failed = rules.failure(
+                silent, member.sent_wall, expected, now, still, f"arrival at task {run.id}"
+            )
+        elif member.state == "working" and run.started_wall is not None:
             expected = max(run.end - run.start, 0.0)
-            if now > rules.due(run.started_wall, expected):
-                return (
-                    f"it is past its expected finish of task {run.id} ({expected:.0f} s "
-                    f"robot time, plus {rules.tolerance(expected):.0f} s of tolerance)"
-                )
-        return None
+            failed = rules.failure(
+                silent, run.started_wall, expected, now, still, f"finish of task {run.id}"
+            )
+        else:
+            failed = rules.failure(silent, None, 0.0, now, None)
+        return failed[1] if failed is not None else None
 
     async def _robot_failed(self, member: RobotRun, why: str) -> None:
         record = self.record

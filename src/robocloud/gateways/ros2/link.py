@@ -99,6 +99,7 @@ class RobotLink:
         self._servers: set[str] = set()  # the action's services whose server is visible
         self._clients = {name: ServiceClient() for name in naming.SERVICES}
         self._rings: dict[str, Any] = {}  # part -> its subscriber with a ring channel
+        self._queriers: dict[str, Any] = {}  # a bridge's service -> its querier (matching)
         # Goals sent, Nav2's answer not in yet -> whether a cancel waits for it: a cancel
         # sent before the goal's acceptance could reach Nav2 first and miss the goal.
         self._unanswered: dict[bytes, bool] = {}
@@ -117,6 +118,7 @@ class RobotLink:
         with self._lock:
             session, self._session = self._session, None
             entities, self._entities = self._entities, []
+            self._queriers = {}
         for entity in entities:
             with contextlib.suppress(zenoh.ZError):
                 entity.undeclare()
@@ -183,6 +185,8 @@ class RobotLink:
                 entities.append(querier.declare_matching_listener(listener))
                 status: Any = querier.matching_status  # a MatchingStatus (the stub says bool)
                 self._on_matching(service, bool(status.matching))
+                with self._lock:
+                    self._queriers[service] = querier
         with self._lock:
             self._entities.extend(entities)
 
@@ -261,9 +265,15 @@ class RobotLink:
             log.exception("robot %s: a %s sample could not be handled", self.robot_id, part)
 
     def poll(self) -> None:
-        """Read what the rings of the fast topics hold (see ``RINGS``)."""
+        """Read what the rings of the fast topics hold (see ``RINGS``); for a bridge's
+        robot, read its services' matching status again: a full run once saw a bridge
+        robot's Nav2 never become visible, its matching listener silent."""
         with self._lock:
             rings = list(self._rings.items())
+            queriers = list(self._queriers.items())
+        for service, querier in queriers:
+            with contextlib.suppress(zenoh.ZError):
+                self._on_matching(service, bool(querier.matching_status.matching))
         for part, ring in rings:
             samples = []
             while (sample := ring.try_recv()) is not None:

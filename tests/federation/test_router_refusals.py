@@ -124,6 +124,27 @@ def test_a_real_routers_refusals_are_counted_exactly(certs: Path) -> None:
     assert "robocloud/cloud-b/x\\n" in forged and "from cloud-a-robots" in forged
 
 
+def test_a_closed_standard_output_leaves_the_router_unwatched_not_down() -> None:
+    """A process started with its standard output closed: a warning, and nothing counted."""
+    child = (
+        "import os, sys\n"
+        "os.close(1)\n"
+        "from robocloud.federation.security.router_refusals import watch\n"
+        "refusals = watch('cloud-a', {'subjects': []})\n"
+        "sys.stderr.write(f'counts {refusals.counts()}\\n')\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", child],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        stdin=subprocess.DEVNULL,
+    )
+    assert done.returncode == 0, done.stderr
+    assert "the router's refusals will not be logged or counted" in done.stderr
+    assert "counts {}" in done.stderr and "Traceback" not in done.stderr
+
+
 def test_a_line_that_does_not_start_as_zenohs_is_the_rest_of_the_one_before() -> None:
     """The pipe's framing alone: what Zenoh starts with a raw ESC, the rest is continuation,
     and what is not the access control's trace is copied out unchanged."""

@@ -302,7 +302,16 @@ def watch(cloud: str, acl: Mapping[str, Any]) -> RouterRefusals:
 
     refusals = RouterRefusals(cloud)
     reader = TraceReader(subjects_of(acl), refusals.refused)
-    real = _take_standard_output()
+    try:
+        real = _take_standard_output()
+    except OSError as error:  # no standard output to take (closed): the router still enforces
+        logger.warning(
+            "the router's refusals will not be logged or counted: the standard output, where "
+            "Zenoh writes its trace, cannot be read (%s)",
+            error,
+        )
+        _watching = refusals
+        return refusals
     thread = threading.Thread(
         target=_relay, args=(real.read_end, real.out, reader), name="zenoh-trace", daemon=True
     )

@@ -25,7 +25,6 @@ import contextlib
 import gc
 import logging
 import sys
-from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -34,6 +33,7 @@ from robocloud.federation import security
 
 if TYPE_CHECKING:
     from robocloud.iaas.config import Settings
+    from robocloud.iaas.metrics import RouterRefusals
 
 DEFAULT_ZENOH = "tcp/127.0.0.1:7447"
 
@@ -146,7 +146,8 @@ def add_iaas_arguments(parser: argparse.ArgumentParser) -> None:
         type=int,
         default=1000,
         metavar="N",
-        help="new requests are refused (503) while this many wait for their robots (default 1000)",
+        help="new requests are refused (503) while this many wait for their robots "
+        "(default 1000)",
     )
     parser.add_argument(
         "--time-scale",
@@ -254,7 +255,7 @@ def iaas_command(args: argparse.Namespace) -> int:
     return 0
 
 
-def watch_router(settings: Settings) -> Callable[[], dict[tuple[str, str], int]] | None:
+def watch_router(settings: Settings) -> RouterRefusals | None:
     """With access control on the router, read what it refuses (log lines and a metric)."""
     security = settings.overlay_security
     if security is None or not security.identifies_peers:
@@ -370,3 +371,4 @@ def iaas_settings(args: argparse.Namespace) -> Settings:
         overlay_security=overlay_security,
     )
     return settings
+

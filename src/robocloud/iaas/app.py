@@ -137,7 +137,6 @@ def create_app(
     ``router_refusals``: where the metrics read what the router refused, when
     the command reads its trace (``router_refusals.watch``).
     """
-
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         async with build_cloud(settings, metrics, store, link, selector) as cloud:
@@ -182,7 +181,9 @@ def create_app(
     # Every route, for Allow and the OpenAPI's answers (those of included
     # routers are not in app.routes as routes of their own).
     app.state.routes = [
-        r for r in (*routes.routes, *missions.routes, *app.router.routes) if isinstance(r, APIRoute)
+        r
+        for r in (*routes.routes, *missions.routes, *app.router.routes)
+        if isinstance(r, APIRoute)
     ]
     return app
 
@@ -556,7 +557,9 @@ def _routes() -> Any:
         overlay: ZenohOverlay | None = request.app.state.overlay
         if scope == "federation" and overlay is not None and cloud != service.settings.cloud:
             fleets = await asyncio.to_thread(overlay.fleets)
-            remote += remote_rows((f.robots for f in fleets), wanted, service.settings.cloud, owns)
+            remote += remote_rows(
+                (f.robots for f in fleets), wanted, service.settings.cloud, owns
+            )
         page = build_page(
             local,
             remote,
@@ -668,10 +671,8 @@ def _install_error_handlers(app: FastAPI) -> None:
         if error.status_code == 400:
             # FastAPI's answer to a body it cannot decode (not UTF-8, say).
             return JSONResponse(
-                {
-                    "detail": "the body could not be read as JSON (not UTF-8, or nested too "
-                    "deep): send a JSON task in UTF-8."
-                },
+                {"detail": "the body could not be read as JSON (not UTF-8, or nested too "
+                 "deep): send a JSON task in UTF-8."},
                 status_code=422,
             )
         if error.status_code == 405:

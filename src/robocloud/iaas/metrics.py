@@ -178,14 +178,7 @@ class IaasMetrics:
 
 # Why a robot failed its part of a request (``robocloud.iaas.lifecycle.Failure``).
 FAILURE_CAUSES = (
-    "no_ack",
-    "overrun",
-    "stalled",
-    "offline",
-    "silent",
-    "reported",
-    "dropped",
-    "loan_ended",
+    "no_ack", "overrun", "stalled", "offline", "silent", "reported", "dropped", "loan_ended",
 )
 
 

@@ -155,7 +155,9 @@ def test_a_new_session_starts_its_own_order_and_an_old_ones_replays_are_dropped(
     assert latest.states()["a-0"].session == "boot-2" and latest.states()["a-0"].seq == 1
 
 
-def test_a_state_forged_ahead_is_overtaken_by_the_robots_next_ones() -> None:
+def test_a_state_forged_ahead_is_overtaken_by_the_robots_next_ones(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
     """Issue 25: a state with a huge seq and a sent_at ahead counts as sent when it
     arrived (plus ARRIVAL_SLACK): the robot's own states win again seconds later,
     whatever session the forger names (the real one's too: it is on the wire)."""
@@ -173,3 +175,6 @@ def test_a_state_forged_ahead_is_overtaken_by_the_robots_next_ones() -> None:
         clock.now = 100.5 + ARRIVAL_SLACK + 0.1
         assert latest.accept(ordered(9, clock.now, "boot-1", battery=80.0)), forged_session
         assert latest.states()["a-0"].battery == 80.0
+        assert latest.overtaken() == {"overtaken": 1}
+    # The log says how far ahead of its arrival the forged state claimed to be.
+    assert caplog.text.count("claimed to be sent at 390.500, 290.0 s after it arrived") == 3

@@ -160,12 +160,13 @@ class LatestStates:
     def accept_many(self, states: Iterable[State]) -> int:
         """``accept`` for several states under one lock (a gateway's batch); how many were kept."""
         now = self.clock()
+        wall = self.wall()
         kept: list[State] = []
         with self._lock:
             if now - self._pruned_at > min(10.0, self.forget_after / 10):
                 self._forget_silent(now)
             for state in states:
-                if self._keep(state, now):
+                if self._keep(state, now, wall):
                     kept.append(state)
             if len(self._columns.sets) > 2 * len(self._states) + 1024:
                 # Capability sets no robot has any more: start the rows again.
@@ -185,8 +186,9 @@ class LatestStates:
                     logger.exception("a robot state listener failed")
         return len(kept)
 
-    def _keep(self, state: State, now: float) -> bool:
-        """Hold ``state`` if it is newer (the caller holds the lock)."""
+    def _keep(self, state: State, now: float, wall: float) -> bool:
+        """Hold ``state`` if it is newer (the caller holds the lock); ``now`` is the
+        monotonic clock, ``wall`` this IaaS's unix clock, read once for a batch."""
         held = self._states.get(state.id)
         # An old or repeated message (a reconnected robot may send its last one
         # again) is dropped; a restarted robot's is not (State.is_newer_than).
@@ -194,11 +196,11 @@ class LatestStates:
         # one forged with a huge seq and a sent_at ahead is overtaken by the
         # robot's own within seconds.
         if held is not None:
-            held_until = self.wall() - (now - self._received[state.id]) + ARRIVAL_SLACK
-            if not state.is_newer_than(held, held_until):
+            arrived = wall - (now - self._received[state.id])
+            if not state.is_newer_than(held, arrived + ARRIVAL_SLACK):
                 return False
-            if held.sent_at > held_until and not state.is_newer_than(held):
-                self._overtake(state, held)
+            if held.sent_at > arrived + ARRIVAL_SLACK and not state.is_newer_than(held):
+                self._overtake(state, held, arrived)
         if held is None and len(self._states) >= self.max_fleet:
             self._forget_silent(now)
             if len(self._states) >= self.max_fleet:
@@ -230,7 +232,7 @@ class LatestStates:
         self._columns.put(state, now, changed)
         return True
 
-    def _overtake(self, state: State, held: State) -> None:
+    def _overtake(self, state: State, held: State, arrived: float) -> None:
         """``held`` claimed a time ahead of its arrival and is overtaken only because of it:
         say so (the caller holds the lock)."""
         self._overtaken += 1
@@ -242,7 +244,7 @@ class LatestStates:
                 held.id,
                 held.seq,
                 held.sent_at,
-                held.sent_at - (self.wall() - ARRIVAL_SLACK),
+                held.sent_at - arrived,
                 state.seq,
                 state.sent_at,
                 self._overtaken,

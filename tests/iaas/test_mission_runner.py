@@ -43,11 +43,11 @@ def construction(problem: Problem, time_limit: float) -> Plan:
     return Plan(schedule, None, False, "anytime", 0.0, None if schedule else "no plan")
 
 
-def state(i: int, x: float, protocol: str | None = "1.2") -> State:
+def state(i: int, x: float, protocol: str | None = "1.2", work: float = 10.0) -> State:
     robot = Robot.model_validate({
         "id": f"a-{i:04d}", "cloud": "cloud-a", "position": [x, 0.0], "speed": 1.0,
         "battery": 90.0, "status": "idle", "travel_cost_per_m": 0.1,
-        "capabilities": {"grabber": {"kind": "actuating", "time": 10.0, "cost": 1.0}},
+        "capabilities": {"grabber": {"kind": "actuating", "time": work, "cost": 1.0}},
     })
     return State.model_validate({
         **robot.model_dump(), "kind": "tribot", "task": None, "seq": 0, "sent_at": 0.0,
@@ -326,6 +326,36 @@ def test_a_task_with_a_duration_keeps_its_members_that_long() -> None:
         await world.run(runner, 120.0)
         assert record.state == "completed", record.history
         assert f2.start >= f1.start + 60.0 - 1e-6  # the plan had them stay, and they did
+
+    asyncio.run(scenario())
+
+
+def test_a_member_that_stayed_goes_on_when_a_slower_one_ends_the_task() -> None:
+    """f1 lasts 20 s: one member's work takes 10 s (it stays), the other's 25 s (within the
+    watchdog's tolerance of 10 s). f1 ends with the slow one's done, and the member that
+    stayed goes on then too: to f2, or released. It is not left on f1."""
+
+    async def scenario() -> None:
+        world = World([state(0, 10.0), state(1, -10.0, work=25.0)])
+        body = {**TWO_FIRES, "tasks": [
+            {"id": "f1", "location": [0, 10], "actuating": {"grabber": 2}, "duration": 20.0},
+            {"id": "f2", "location": [30, 10], "actuating": {"grabber": 1}},
+        ]}  # fmt: skip
+        runner = await world.begin(body)
+        record = runner.record
+        f1 = next(run for run in record.tasks.values() if run.id == "f1")
+        for _ in range(200):
+            await world.run(runner, 1.0)
+            if f1.state == "done":
+                break
+        assert f1.state == "done", record.history
+        left_on_f1 = [
+            m.id for m in record.robots.values()
+            if m.current is not None and m.current.task == f1.number and m.state == "working"
+        ]  # fmt: skip
+        assert left_on_f1 == [], record.history
+        await world.run(runner, 120.0)
+        assert record.state == "completed", record.history
 
     asyncio.run(scenario())
 

@@ -460,6 +460,11 @@ class MissionRunner:
         if all(r.state == "done" for r in record.tasks.values()):
             await self._end("completed", "every task is done", reason=None)
             return
+        # Its members go on: those that stayed for its duration too, whoever ended it.
+        for robot_id in run.robots:
+            member = record.robots.get(robot_id)
+            if member is not None:
+                await self._advance(member)
         # A task whose predecessors just finished may start now.
         for other in record.tasks.values():
             if other.state == "waiting":
@@ -486,11 +491,6 @@ class MissionRunner:
                 await self._task_maybe_done(run)
                 if is_final(record.state):
                     return
-                if run.state == "done":
-                    for robot_id in run.robots:
-                        member = record.robots.get(robot_id)
-                        if member is not None:
-                            await self._advance(member)
         for member in list(record.robots.values()):
             if member.state == "assigned":
                 await self._advance(member)

@@ -108,11 +108,11 @@ def check_gateways(
     gateways: Sequence[tuple[str, Sequence[str]]],
 ) -> tuple[tuple[str, tuple[str, ...]], ...]:
     """Gateways with their robots, checked: key chunks, each gateway once, each robot in one."""
-    checked: list[tuple[str, tuple[str, ...]]] = []
+    checked: dict[str, tuple[str, ...]] = {}  # gateway -> its robots, in the given order
     owner: dict[str, str] = {}
     for name, ids in gateways:
         gateway = check_chunk(name, "gateway name")
-        if any(gateway == seen for seen, _ in checked):
+        if gateway in checked:
             raise InvalidInput(f"the gateway {gateway!r} is listed twice.", field="gateways")
         robots = check_robot_ids(ids)
         for rid in robots:
@@ -123,8 +123,8 @@ def check_gateways(
                     field="gateways",
                 )
             owner[rid] = gateway
-        checked.append((gateway, robots))
-    return tuple(checked)
+        checked[gateway] = robots
+    return tuple(checked.items())
 
 
 def check_robot_ids(robot_ids: Sequence[str]) -> tuple[str, ...]:

@@ -30,13 +30,14 @@ from robocloud.federation.security.router_refusals import (
 )
 
 CHILD = r"""
-import json, sys, time
+import json, logging, sys, threading, time
 from pathlib import Path
 from robocloud.federation.security import OverlaySecurity
 from robocloud.federation.security.router_refusals import watch
 from robocloud.fleet import open_client, open_router
 
 certs, endpoint = Path(sys.argv[1]), sys.argv[2]
+logging.basicConfig(level="WARNING")  # the refusals' lines on standard error
 
 def security(name):
     return OverlaySecurity(
@@ -69,7 +70,18 @@ fleet.put("robocloud/cloud-a/robots/last/state", "{}")
 deadline = time.monotonic() + 10
 while "robocloud/cloud-a/robots/last/state" not in heard and time.monotonic() < deadline:
     time.sleep(0.01)
-time.sleep(0.5)
+# Then a last refused put: once its refusal is logged, every line before it was read
+# (one pipe, read in order).
+read = threading.Event()
+
+class Sentinel(logging.Handler):
+    def emit(self, record):
+        if "robocloud/cloud-b/sentinel" in record.getMessage():
+            read.set()
+
+logging.getLogger("robocloud.federation.security.router_refusals").addHandler(Sentinel())
+fleet.put("robocloud/cloud-b/sentinel", "{}")
+assert read.wait(10), "the sentinel's refusal was not read"
 counts = {f"{party} {message}": n for (party, message), n in refusals.counts().items()}
 print(json.dumps({"counts": counts, "heard": sorted(set(heard))}), flush=True)
 fleet.close()
@@ -110,15 +122,16 @@ def test_a_real_routers_refusals_are_counted_exactly(certs: Path) -> None:
     assert lines[0] == "python's own output" and len(lines) == 2, done.stdout
     result = json.loads(lines[1])
     assert result["counts"] == {
-        # 4 of b-1, the forged key's, the verdict's words, 2 through b-2's publisher
-        "cloud-a-robots put": 8,
+        # 4 of b-1, the forged key's, the verdict's words, 2 through b-2's publisher, the
+        # sentinel
+        "cloud-a-robots put": 9,
         "cloud-a-robots liveliness_token": 1,
         "cloud-a-robots declare_queryable": 1,
     }
     assert "robocloud/cloud-a/robots/a-2/state" in result["heard"]
     assert not [key for key in result["heard"] if "cloud-b" in key]
     said = [line for line in done.stderr.splitlines() if "router refused" in line]
-    assert len(said) == 10 and "from cloud-zz " not in done.stderr
+    assert len(said) == 11 and "from cloud-zz " not in done.stderr
     # The forged key is logged whole, its newline escaped, in the line of its refusal.
     [forged] = [line for line in said if "made-up" in line]
     assert "robocloud/cloud-b/x\\n" in forged and "from cloud-a-robots" in forged

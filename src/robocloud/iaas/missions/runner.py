@@ -66,6 +66,8 @@ log = logging.getLogger(__name__)
 
 ATTEMPTS = 8  # plans per (re)planning when chosen robots are taken meanwhile
 PROTOCOL_WAIT = 2.0  # wall seconds to hear a borrowed robot's protocol before its first assign
+# A member's state while its task is in a phase (``RobotRun.state``).
+MEMBER_STATE = {"travel": "travel", "waiting": "waiting", "work": "working"}
 
 
 @dataclass(frozen=True)
@@ -384,8 +386,8 @@ class MissionRunner:
             return
         if member.id in run.done_by:
             return
-        phase = {"travel": "travel", "waiting": "waiting", "work": "working"}.get(task.phase)
-        if task.progress > member.progress + 1e-9 or (phase and phase != member.state):
+        moved_to = MEMBER_STATE.get(task.phase)
+        if task.progress > member.progress + 1e-9 or (moved_to and moved_to != member.state):
             member.progress, member.progressed_wall = task.progress, now
         if task.phase == "travel":
             member.state = "travel"
